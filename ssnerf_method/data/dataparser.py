@@ -1,0 +1,86 @@
+"""Dataparser for the SS-NeRF dataset format: nerfstudio's `transforms.json` plus per-frame property files.
+
+nerfstudio's own parser reads cameras, images, depth and splits; this one adds, per output image, the path of each
+property label (the registry's `file_key`), the class list and colours, and each camera's pose as ray metadata.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Dict, List, Optional, Type
+
+from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
+from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, NerfstudioDataParserConfig
+from nerfstudio.plugins.registry_dataparser import DataParserSpecification
+from nerfstudio.utils.io import load_from_json
+
+from ssnerf_method.fields.ssnerf_field import add_pose_metadata
+from ssnerf_method.properties import REGISTRY, LabelFileError
+
+
+@dataclass
+class SSNeRFDataParserConfig(NerfstudioDataParserConfig):
+    """nerfstudio's dataparser plus the SS-NeRF property files."""
+
+    _target: Type = field(default_factory=lambda: SSNeRFDataParser)
+
+
+class SSNeRFDataParser(Nerfstudio):
+    """Reads the property keys of each frame and checks them against the class list."""
+
+    config: SSNeRFDataParserConfig
+
+    def _generate_dataparser_outputs(self, split: str = "train", **kwargs) -> DataparserOutputs:
+        data_dir = self.config.data if self.config.data.is_dir() else self.config.data.parent
+        transforms_path = data_dir / "transforms.json" if self.config.data.is_dir() else self.config.data
+        if not transforms_path.is_file():
+            raise FileNotFoundError(
+                f"{transforms_path}: no transforms.json. Point --data at a folder in the SS-NeRF dataset format "
+                "(see README, 'Dataset format'), e.g. one made by `ssnerf-make-scene`."
+            )
+        outputs = super()._generate_dataparser_outputs(split, **kwargs)
+        meta = load_from_json(transforms_path)
+        frames = {self._get_fname(Path(frame["file_path"]), data_dir): frame for frame in meta["frames"]}
+        output_frames = [frames[path] for path in outputs.image_filenames]
+
+        property_files: Dict[str, List[Optional[Path]]] = {}
+        for spec in REGISTRY.values():
+            if spec.file_key is None or not any(spec.file_key in frame for frame in meta["frames"]):
+                continue
+            property_files[spec.name] = [
+                data_dir / frame[spec.file_key] if spec.file_key in frame else None for frame in output_frames
+            ]
+
+        classes = meta.get("semantic_classes")
+        if "semantics" in property_files and not classes:
+            raise LabelFileError(
+                f"{transforms_path}: frames list semantics files but there is no top-level \"semantic_classes\". "
+                "Add the class names (id = index), e.g. \"semantic_classes\": [\"void\", \"bed\", ...]."
+            )
+        colors = meta.get("semantic_colors")
+        if colors is not None and (len(colors) != len(classes or []) or any(len(c) != 3 for c in colors)):
+            raise LabelFileError(
+                f"{transforms_path}: \"semantic_colors\" must hold one RGB triple per entry of \"semantic_classes\"."
+            )
+
+        label_sizes = [
+            (int(frame.get("w", meta.get("w", 0))), int(frame.get("h", meta.get("h", 0)))) for frame in output_frames
+        ]
+        outputs.metadata.update(
+            {
+                "property_files": property_files,
+                "available_properties": tuple(property_files),
+                "semantic_classes": classes or [],
+                "semantic_colors": colors,
+                "label_sizes": label_sizes,
+            }
+        )
+        add_pose_metadata(outputs.cameras)
+        return outputs
+
+
+ssnerf_dataparser = DataParserSpecification(
+    config=SSNeRFDataParserConfig(),
+    description="nerfstudio transforms.json with SS-NeRF property files (semantics, normals, shading, ...).",
+)

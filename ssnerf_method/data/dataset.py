@@ -1,0 +1,43 @@
+"""Dataset that returns, with each RGB image, a label tensor per property (ignore-filled where a frame lacks it).
+
+Labels are image-shaped, so nerfstudio's pixel sampler picks the same pixels from RGB and every property.
+"""
+
+from __future__ import annotations
+
+from typing import Dict
+
+import torch
+import torch.nn.functional as F
+
+from nerfstudio.data.datasets.base_dataset import InputDataset
+
+from ssnerf_method.properties import REGISTRY
+
+
+class SSNeRFDataset(InputDataset):
+    """nerfstudio's `InputDataset` plus the property labels listed by `SSNeRFDataParser`."""
+
+    def __init__(self, dataparser_outputs, scale_factor: float = 1.0) -> None:
+        super().__init__(dataparser_outputs, scale_factor)
+        self.property_files = self.metadata.get("property_files", {})
+        self.label_sizes = self.metadata.get("label_sizes", [])
+        self.num_classes = len(self.metadata.get("semantic_classes", []))
+
+    def get_metadata(self, data: Dict) -> Dict[str, torch.Tensor]:
+        index = data["image_idx"]
+        height, width = data["image"].shape[:2]
+        labels = {}
+        for name, files in self.property_files.items():
+            kind = REGISTRY[name].kind
+            path = files[index]
+            if path is None:
+                labels[name] = kind.missing(width, height, self.num_classes)
+                continue
+            expected = self.label_sizes[index] if all(self.label_sizes[index]) else (width, height)
+            label = kind.read(path, *expected, self.num_classes)
+            if label.shape[:2] != (height, width):  # images were downscaled: labels follow, nearest-neighbour
+                label = F.interpolate(label.permute(2, 0, 1)[None], size=(height, width), mode="nearest")[0]
+                label = label.permute(1, 2, 0)
+            labels[name] = label
+        return labels

@@ -1,0 +1,142 @@
+"""The SS-NeRF field: F_enc gives density and a feature, F_dec^v and F_dec^nv turn the feature into properties.
+
+Which decoder predicts which property comes from each `PropertySpec.branch` (the paper's Table 3 swaps them). The
+view-dependent decoder also sees the encoded view direction; the view-independent one optionally sees the encoded
+camera pose (the paper's surface-normal modelling).
+"""
+
+from __future__ import annotations
+
+from typing import Dict, List, Literal, Optional, Sequence, Tuple
+
+import torch
+from jaxtyping import Float
+from torch import Tensor, nn
+
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.cameras.rays import RaySamples
+from nerfstudio.field_components.activations import trunc_exp
+from nerfstudio.field_components.encodings import NeRFEncoding, SHEncoding
+from nerfstudio.field_components.field_heads import FieldHeadNames
+from nerfstudio.field_components.mlp import MLP
+from nerfstudio.field_components.spatial_distortions import SceneContraction
+from nerfstudio.fields.base_field import Field, get_normalized_directions
+
+from ssnerf_method.fields.encoders import PositionEncoder
+from ssnerf_method.properties import Branch, PropertySpec
+
+POSE_METADATA_KEY = "camera_to_world"
+"""Ray metadata holding each ray's camera-to-world 3x4 matrix, flattened to 12 numbers."""
+
+
+def add_pose_metadata(cameras: Cameras) -> Cameras:
+    """Attach each camera's flattened camera-to-world matrix so its rays carry it (normals rotation, pose input)."""
+    metadata = dict(cameras.metadata or {})
+    metadata[POSE_METADATA_KEY] = cameras.camera_to_worlds.reshape(*cameras.camera_to_worlds.shape[:-2], 12)
+    cameras.metadata = metadata
+    return cameras
+
+
+class BranchDecoder(nn.Module):
+    """One decoder branch: a small MLP over its inputs, then one linear head per property (fused into one layer)."""
+
+    def __init__(self, in_dim: int, width: int, num_layers: int, head_channels: Dict[str, int]) -> None:
+        super().__init__()
+        self.names = list(head_channels)
+        self.channels = [head_channels[name] for name in self.names]
+        self.mlp = MLP(in_dim=in_dim, num_layers=num_layers, layer_width=width, out_dim=width,
+                       activation=nn.ReLU(), out_activation=nn.ReLU())
+        self.heads = nn.Linear(width, sum(self.channels))
+
+    def forward(self, inputs: Float[Tensor, "*bs in_dim"]) -> Dict[str, Tensor]:
+        raw = self.heads(self.mlp(inputs))
+        return dict(zip(self.names, torch.split(raw, self.channels, dim=-1)))
+
+
+class SSNeRFField(Field):
+    """Shared encoder plus the two property decoders.
+
+    Args:
+        specs: the properties this field predicts (RGB included).
+        num_classes: number of semantic classes (head width of class-valued properties).
+        encoder: the shared position encoder F_enc.
+        direction_encoding: "nerf" (4-frequency sinusoids, the paper's) or "sh" (spherical harmonics, degree 4).
+        decoder_width, decoder_layers: size of each decoder branch's MLP.
+        pose_conditioned: feed the encoded camera pose to F_dec^nv (the paper's normal modelling).
+        density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
+        density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
+    """
+
+    def __init__(
+        self,
+        specs: Sequence[PropertySpec],
+        num_classes: int,
+        encoder: PositionEncoder,
+        direction_encoding: Literal["nerf", "sh"] = "nerf",
+        decoder_width: int = 128,
+        decoder_layers: int = 1,
+        pose_conditioned: bool = False,
+        density_activation: Literal["relu", "trunc_exp"] = "relu",
+        density_noise: float = 0.0,
+    ) -> None:
+        super().__init__()
+        self.specs = {spec.name: spec for spec in specs}
+        self.encoder = encoder
+        self.spatial_distortion = SceneContraction(order=float("inf"))
+        self.density_activation = density_activation
+        self.density_noise = density_noise
+        self.direction_encoding_name = direction_encoding
+        if direction_encoding == "sh":
+            self.direction_encoding: nn.Module = SHEncoding(levels=4)
+        else:
+            self.direction_encoding = NeRFEncoding(in_dim=3, num_frequencies=4, min_freq_exp=0.0, max_freq_exp=3.0,
+                                                   include_input=True)
+        self.pose_encoding: Optional[NeRFEncoding] = None
+        if pose_conditioned:
+            self.pose_encoding = NeRFEncoding(in_dim=12, num_frequencies=10, min_freq_exp=0.0, max_freq_exp=9.0,
+                                              include_input=True)
+
+        branch_inputs = {
+            "v": encoder.feature_dim + self.direction_encoding.get_out_dim(),
+            "nv": encoder.feature_dim + (self.pose_encoding.get_out_dim() if self.pose_encoding is not None else 0),
+        }
+        self.decoders = nn.ModuleDict()
+        for branch, in_dim in branch_inputs.items():
+            heads = {spec.name: spec.kind.head_channels(num_classes) for spec in specs if spec.branch == branch}
+            if heads:
+                self.decoders[branch] = BranchDecoder(in_dim, decoder_width, decoder_layers, heads)
+
+    def get_density(self, ray_samples: RaySamples) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
+        positions = self.spatial_distortion(ray_samples.frustums.get_positions())
+        raw_density, feature = self.encoder(positions)
+        if self.training and self.density_noise > 0:
+            raw_density = raw_density + torch.randn_like(raw_density) * self.density_noise
+        if self.density_activation == "trunc_exp":
+            return trunc_exp(raw_density), feature
+        return torch.relu(raw_density), feature
+
+    def branch_inputs(self, branch: Branch, ray_samples: RaySamples, feature: Tensor) -> Tensor:
+        """The decoder input of one branch: the shared feature plus what that branch is conditioned on."""
+        inputs: List[Tensor] = [feature]
+        if branch == "v":
+            directions = ray_samples.frustums.directions
+            if self.direction_encoding_name == "sh":
+                directions = get_normalized_directions(directions)
+            inputs.append(self.direction_encoding(directions))
+        elif self.pose_encoding is not None:
+            if ray_samples.metadata is None or POSE_METADATA_KEY not in ray_samples.metadata:
+                raise RuntimeError(f"pose-conditioned normals need ray metadata '{POSE_METADATA_KEY}'")
+            pose = self.pose_encoding(ray_samples.metadata[POSE_METADATA_KEY])
+            inputs.append(pose.expand(*feature.shape[:-1], -1))
+        return torch.cat(inputs, dim=-1)
+
+    def get_outputs(
+        self, ray_samples: RaySamples, density_embedding: Optional[Tensor] = None
+    ) -> Dict[FieldHeadNames | str, Tensor]:
+        assert density_embedding is not None
+        outputs: Dict[FieldHeadNames | str, Tensor] = {}
+        for branch, decoder in self.decoders.items():
+            raw = decoder(self.branch_inputs(branch, ray_samples, density_embedding))
+            for name, values in raw.items():
+                outputs[name] = self.specs[name].kind.activation(values)
+        return outputs

@@ -1,0 +1,97 @@
+"""The two registered methods: `ssnerf` (the paper's sizes, for a GPU) and `ssnerf-lite` (same split, CPU-sized).
+
+Both are the same model and data pipeline; `ssnerf-lite` swaps the positional-encoding MLP of F_enc for nerfstudio's
+hash grid and NeRF's coarse/fine fields for nerfstudio's proposal sampler, which is what makes minutes on 2 CPU
+cores enough (see ../shared/notes/cpu-speed.md in the project's notes).
+"""
+
+from __future__ import annotations
+
+import torch
+
+from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
+from nerfstudio.engine.optimizers import AdamOptimizerConfig
+from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
+from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
+from nerfstudio.plugins.types import MethodSpecification
+
+from ssnerf_method.data.datamanager import SSNeRFDataManagerConfig
+from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
+
+
+def default_machine() -> MachineConfig:
+    """Train on CUDA when there is a GPU, else on the CPU (nerfstudio's default would fail without CUDA)."""
+    return MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu")
+
+
+ssnerf_config = TrainerConfig(
+    method_name="ssnerf",
+    steps_per_eval_batch=500,
+    steps_per_eval_image=2500,
+    steps_per_save=5000,
+    max_num_iterations=200000,
+    mixed_precision=False,
+    machine=default_machine(),
+    pipeline=VanillaPipelineConfig(
+        datamanager=SSNeRFDataManagerConfig(train_num_rays_per_batch=1024, eval_num_rays_per_batch=1024),
+        model=SSNeRFModelConfig(eval_num_rays_per_chunk=4096),
+    ),
+    optimizers={
+        "fields": {
+            "optimizer": AdamOptimizerConfig(lr=5e-4, eps=1e-8),
+            # The authors decay by 0.1 over 250k steps: 5e-4 -> 5e-5.
+            "scheduler": ExponentialDecaySchedulerConfig(lr_final=5e-5, max_steps=250000),
+        },
+    },
+    viewer=ViewerConfig(num_rays_per_chunk=4096),
+    vis="viewer",
+)
+
+ssnerf_lite_config = TrainerConfig(
+    method_name="ssnerf-lite",
+    steps_per_eval_batch=500,
+    steps_per_eval_image=5000,
+    steps_per_eval_all_images=1000000,
+    steps_per_save=2000,
+    max_num_iterations=30000,
+    mixed_precision=False,
+    machine=default_machine(),
+    pipeline=VanillaPipelineConfig(
+        datamanager=SSNeRFDataManagerConfig(train_num_rays_per_batch=1024, eval_num_rays_per_batch=1024),
+        model=SSNeRFModelConfig(
+            eval_num_rays_per_chunk=8192,
+            encoder="hashgrid",
+            direction_encoding="sh",
+            decoder_width=64,
+            decoder_layers=2,
+            density_noise=0.0,
+            density_activation="trunc_exp",
+            sampling="proposal",
+            num_proposal_samples=(64, 32),
+            num_field_samples=32,
+            far_plane=1000.0,
+        ),
+    ),
+    optimizers={
+        "proposal_networks": {
+            "optimizer": AdamOptimizerConfig(lr=1e-2, eps=1e-15),
+            "scheduler": ExponentialDecaySchedulerConfig(lr_final=1e-4, max_steps=30000),
+        },
+        "fields": {
+            "optimizer": AdamOptimizerConfig(lr=1e-2, eps=1e-15),
+            "scheduler": ExponentialDecaySchedulerConfig(lr_final=1e-4, max_steps=30000),
+        },
+    },
+    viewer=ViewerConfig(num_rays_per_chunk=8192),
+    vis="viewer",
+)
+
+ssnerf = MethodSpecification(
+    config=ssnerf_config,
+    description="SS-NeRF (paper sizes): RGB + semantics, normals, shading, keypoints, edges from one NeRF.",
+)
+ssnerf_lite = MethodSpecification(
+    config=ssnerf_lite_config,
+    description="SS-NeRF with a hash-grid encoder and proposal sampling: trains on a CPU in minutes.",
+)

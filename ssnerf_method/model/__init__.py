@@ -1,0 +1,1 @@
+"""The SS-NeRF model (nerfstudio `Model`) and its losses."""

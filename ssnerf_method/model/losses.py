@@ -1,0 +1,48 @@
+"""The paper's per-property losses (Sec. 3.3), keyed by the name a `PropertySpec.loss` gives.
+
+Each takes the rendered prediction, the label and a mask of rays whose label exists, and averages over those rays
+only, so a frame without a label (or an unlabelled pixel) contributes nothing.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, Dict
+
+import torch
+import torch.nn.functional as F
+from jaxtyping import Bool, Float
+from torch import Tensor
+
+
+def _masked(prediction: Tensor, label: Tensor, valid: Tensor) -> tuple[Tensor, Tensor]:
+    return prediction[valid], label[valid]
+
+
+def mse_loss(prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"], valid: Bool[Tensor, "rays"]) -> Tensor:
+    """Mean squared error (RGB, normals)."""
+    if not valid.any():
+        return prediction.sum() * 0.0
+    return F.mse_loss(*_masked(prediction, label, valid))
+
+
+def l1_loss(prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"], valid: Bool[Tensor, "rays"]) -> Tensor:
+    """Mean absolute error (shading, keypoints, edges)."""
+    if not valid.any():
+        return prediction.sum() * 0.0
+    return F.l1_loss(*_masked(prediction, label, valid))
+
+
+def cross_entropy_loss(
+    logits: Float[Tensor, "rays classes"], label: Float[Tensor, "rays 1"], valid: Bool[Tensor, "rays"]
+) -> Tensor:
+    """Cross-entropy of the softmax of volume-rendered logits against class ids (semantics)."""
+    if not valid.any():
+        return logits.sum() * 0.0
+    return F.cross_entropy(logits[valid], label[valid][..., 0].long())
+
+
+LOSSES: Dict[str, Callable[[Tensor, Tensor, Tensor], Tensor]] = {
+    "mse": mse_loss,
+    "l1": l1_loss,
+    "cross_entropy": cross_entropy_loss,
+}

@@ -1,0 +1,278 @@
+"""SS-NeRF model: renders RGB and every enabled scene property from one shared field (paper Sec. 3.3).
+
+Everything per property (heads, rendering, loss, metric, display) is read from the registry in
+`ssnerf_method/properties.py`; this module only wires the field, the sampling strategy and nerfstudio's hooks.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Literal, Optional, Tuple, Type
+
+import numpy as np
+import torch
+from torch import Tensor, nn
+
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.cameras.rays import RayBundle
+from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
+from nerfstudio.field_components.spatial_distortions import SceneContraction
+from nerfstudio.fields.density_fields import HashMLPDensityField
+from nerfstudio.model_components.losses import distortion_loss, interlevel_loss
+from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRenderer
+from nerfstudio.model_components.scene_colliders import NearFarCollider
+from nerfstudio.models.base_model import Model, ModelConfig
+from nerfstudio.utils import colormaps
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from ssnerf_method.evaluation.metrics import METRICS
+from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
+from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField, add_pose_metadata
+from ssnerf_method.model.losses import LOSSES
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, Branch, PropertySpec, RenderContext, resolve_properties
+from ssnerf_method.rendering.palette import semantic_palette
+from ssnerf_method.rendering.sampling import (
+    HierarchicalSampling,
+    ProposalSampling,
+    RaySampling,
+    SampleLevel,
+    SamplingResult,
+)
+
+
+@dataclass
+class SSNeRFModelConfig(ModelConfig):
+    """SS-NeRF model configuration. Defaults are the paper's (`ssnerf`); `ssnerf-lite` overrides the sizes."""
+
+    _target: Type = field(default_factory=lambda: SSNeRFModel)
+    properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    """Properties to render besides RGB (always on); any subset of the registry's."""
+    branches: Dict[str, Branch] = field(default_factory=dict)
+    """Per-property decoder branch overrides, e.g. {semantics: v} (paper Table 3); unset = the paper's choice."""
+    loss_weights: Dict[str, float] = field(default_factory=dict)
+    """Per-property loss weight overrides; unset = the paper's lambda."""
+    normals_mode: Literal["world", "pose"] = "world"
+    """"world": predict world-frame normals, render, normalise, rotate into the camera; "pose": the paper's
+    camera-pose-conditioned F_dec^nv predicting the camera-frame encoding directly."""
+    encoder: Literal["positional", "hashgrid"] = "positional"
+    """F_enc: NeRF positional encoding + MLP (the paper's), or a multi-resolution hash grid + small MLP (lite)."""
+    encoder_layers: int = 8
+    """Positional encoder: MLP depth (skip connection after the 4th layer)."""
+    encoder_width: int = 256
+    """Positional encoder: MLP width (also the feature size)."""
+    grid_levels: int = 12
+    """Hash grid: number of resolution levels."""
+    grid_max_res: int = 512
+    """Hash grid: finest resolution."""
+    grid_log2_hashmap_size: int = 17
+    """Hash grid: log2 of the table size per level."""
+    grid_hidden_dim: int = 64
+    """Hash grid: width of the MLP after the grid."""
+    grid_feature_dim: int = 15
+    """Hash grid: size of the feature e_x passed to the decoders."""
+    direction_encoding: Literal["nerf", "sh"] = "nerf"
+    """View-direction encoding of F_dec^v: 4-frequency sinusoids (paper) or spherical harmonics."""
+    decoder_width: int = 128
+    """Width of each decoder branch."""
+    decoder_layers: int = 1
+    """Hidden layers of each decoder branch."""
+    density_noise: float = 1.0
+    """Std of noise added to raw density while training (NeRF); 0 disables."""
+    density_activation: Literal["relu", "trunc_exp"] = "relu"
+    """Density activation: ReLU (NeRF) or truncated exponential (grid encoders)."""
+    sampling: Literal["hierarchical", "proposal"] = "hierarchical"
+    """Coarse + fine fields (paper), or nerfstudio's proposal sampler in front of one field (lite)."""
+    num_coarse_samples: int = 64
+    """Hierarchical: uniform samples per ray through the coarse field."""
+    num_fine_samples: int = 64
+    """Hierarchical: importance samples per ray added for the fine field."""
+    num_proposal_samples: Tuple[int, ...] = (64, 32)
+    """Proposal: samples per ray of each proposal network iteration."""
+    num_field_samples: int = 32
+    """Proposal: samples per ray through the field."""
+    proposal_max_res: Tuple[int, ...] = (128, 256)
+    """Proposal: finest grid resolution of each proposal network."""
+    interlevel_loss_mult: float = 1.0
+    """Proposal: weight of the loss that teaches the proposals the field's weights."""
+    distortion_loss_mult: float = 0.002
+    """Proposal: weight of the distortion loss (mip-NeRF 360)."""
+    proposal_weights_anneal_max_num_iters: int = 1000
+    """Proposal: steps over which the proposal weights are annealed."""
+    near_plane: float = 0.05
+    """Near plane, in the dataparser's scaled units."""
+    far_plane: float = 6.0
+    """Far plane, in the dataparser's scaled units (cameras lie within [-1, 1] after scaling)."""
+    implementation: Literal["tcnn", "torch"] = "torch"
+    """Hash grid implementation (tcnn needs tiny-cuda-nn on CUDA)."""
+
+
+class SSNeRFModel(Model):
+    """Scene-property synthesis with one shared radiance field."""
+
+    config: SSNeRFModelConfig
+
+    def populate_modules(self) -> None:
+        super().populate_modules()
+        metadata = self.kwargs.get("metadata") or {}
+        self.class_names: List[str] = list(metadata.get("semantic_classes") or [])
+        self.num_classes = len(self.class_names)
+        available = metadata.get("available_properties", OPTIONAL_PROPERTIES)
+        dropped = [name for name in self.config.properties if name not in available]
+        if dropped:
+            CONSOLE.print(f"[yellow]The dataset has no labels for {dropped}: they are not trained.")
+        self.specs: List[PropertySpec] = resolve_properties(
+            [name for name in self.config.properties if name in available],
+            branches=self.config.branches,
+            weights=self.config.loss_weights,
+            normals_mode=self.config.normals_mode,
+        )
+        self.register_buffer("palette", semantic_palette(self.num_classes, metadata.get("semantic_colors")))
+
+        self.sampling: RaySampling = self._build_sampling()
+        self.collider = NearFarCollider(near_plane=self.config.near_plane, far_plane=self.config.far_plane)
+        self.renderer_depth = DepthRenderer(method="median")
+        self.renderer_accumulation = AccumulationRenderer()
+
+    def _build_field(self) -> SSNeRFField:
+        encoder: PositionEncoder
+        if self.config.encoder == "hashgrid":
+            encoder = HashGridEncoder(
+                num_levels=self.config.grid_levels, max_res=self.config.grid_max_res,
+                log2_hashmap_size=self.config.grid_log2_hashmap_size, hidden_dim=self.config.grid_hidden_dim,
+                feature_dim=self.config.grid_feature_dim, implementation=self.config.implementation,
+            )
+        else:
+            encoder = PositionalMLPEncoder(num_layers=self.config.encoder_layers, width=self.config.encoder_width)
+        return SSNeRFField(
+            self.specs, self.num_classes, encoder,
+            direction_encoding=self.config.direction_encoding,
+            decoder_width=self.config.decoder_width,
+            decoder_layers=self.config.decoder_layers,
+            pose_conditioned=self.config.normals_mode == "pose",
+            density_activation=self.config.density_activation,
+            density_noise=self.config.density_noise,
+        )
+
+    def _build_sampling(self) -> RaySampling:
+        if self.config.sampling == "hierarchical":
+            return HierarchicalSampling(
+                self._build_field(), self._build_field(), self.config.num_coarse_samples, self.config.num_fine_samples
+            )
+        contraction = SceneContraction(order=float("inf"))
+        proposals = nn.ModuleList(
+            HashMLPDensityField(
+                self.scene_box.aabb, spatial_distortion=contraction, num_levels=5, max_res=max_res,
+                log2_hashmap_size=17, hidden_dim=16, implementation=self.config.implementation,
+            )
+            for max_res in self.config.proposal_max_res
+        )
+        return ProposalSampling(
+            self._build_field(), proposals, self.config.num_proposal_samples, self.config.num_field_samples
+        )
+
+    def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        return self.sampling.param_groups()
+
+    def get_training_callbacks(self, training_callback_attributes: TrainingCallbackAttributes) -> List[TrainingCallback]:
+        callbacks = [
+            TrainingCallback(
+                where_to_run=[TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
+                update_every_num_iters=1,
+                func=self.sampling.training_step_callback,
+            )
+        ]
+        if isinstance(self.sampling, ProposalSampling):
+            sampling = self.sampling
+            max_iters = self.config.proposal_weights_anneal_max_num_iters
+
+            def set_anneal(step: int) -> None:
+                fraction = float(np.clip(step / max_iters, 0, 1))
+                sampling.set_anneal(10.0 * fraction / (9.0 * fraction + 1.0))
+
+            callbacks.append(
+                TrainingCallback(
+                    where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
+                    update_every_num_iters=1,
+                    func=set_anneal,
+                )
+            )
+        return callbacks
+
+    def _render_level(self, level: SampleLevel, context: RenderContext, prefix: str) -> Dict[str, Tensor]:
+        """Render every property of one sample level into `prefix + prediction_key` outputs."""
+        return {
+            prefix + spec.prediction_key: spec.kind.render(level.field_outputs[spec.name], level.weights, context)
+            for spec in self.specs
+        }
+
+    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, Tensor | List]:
+        result: SamplingResult = self.sampling(ray_bundle)
+        pose = (ray_bundle.metadata or {}).get(POSE_METADATA_KEY)
+        context = RenderContext(world_to_camera=None if pose is None else pose.view(*pose.shape[:-1], 3, 4)[..., :3].transpose(-1, -2))
+        outputs: Dict[str, Tensor | List] = {}
+        for index, level in enumerate(result.levels):
+            prefix = "" if index == len(result.levels) - 1 else f"level{index}_"
+            outputs.update(self._render_level(level, context, prefix))
+        final = result.levels[-1]
+        for spec in self.specs:
+            if spec.prediction_key != spec.name:
+                outputs[spec.name] = spec.kind.display(outputs[spec.prediction_key], self.palette)
+        outputs["depth"] = self.renderer_depth(weights=final.weights, ray_samples=final.ray_samples)
+        outputs["accumulation"] = self.renderer_accumulation(weights=final.weights)
+        if self.training and result.weights_list:
+            outputs["weights_list"] = result.weights_list
+            outputs["ray_samples_list"] = result.ray_samples_list
+        return outputs
+
+    @property
+    def level_prefixes(self) -> List[str]:
+        """Output prefixes of the supervised levels (the coarse level of hierarchical sampling is "level0_")."""
+        return ["level0_", ""] if isinstance(self.sampling, HierarchicalSampling) else [""]
+
+    def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
+        rgb = next(spec for spec in self.specs if spec.label_key == "image")
+        mse = torch.mean((outputs[rgb.prediction_key] - batch["image"].to(self.device)[..., :3]) ** 2)
+        metrics = {"psnr": -10.0 * torch.log10(mse)}
+        if self.training and "weights_list" in outputs:
+            metrics["distortion"] = distortion_loss(outputs["weights_list"], outputs["ray_samples_list"])
+        return metrics
+
+    def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
+        """The paper's weighted sum: every property on every supervised level, each logged as `<name>_loss`."""
+        losses: Dict[str, Tensor] = {}
+        for spec in self.specs:
+            label = batch[spec.label_key].to(self.device)[..., : spec.kind.label_channels(self.num_classes)]
+            valid = spec.kind.valid(label)
+            for prefix in self.level_prefixes:
+                prediction = outputs[prefix + spec.prediction_key]
+                losses[f"{prefix}{spec.name}_loss"] = spec.weight * LOSSES[spec.loss](prediction, label, valid)
+        if self.training and "weights_list" in outputs:
+            losses["interlevel_loss"] = self.config.interlevel_loss_mult * interlevel_loss(
+                outputs["weights_list"], outputs["ray_samples_list"]
+            )
+            assert metrics_dict is not None
+            losses["distortion_loss"] = self.config.distortion_loss_mult * metrics_dict["distortion"]
+        return losses
+
+    @torch.no_grad()
+    def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:
+        """Render a full camera; its rays carry the camera pose (viewer and render cameras lack it)."""
+        return super().get_outputs_for_camera(add_pose_metadata(camera), obb_box=obb_box)
+
+    def get_image_metrics_and_images(
+        self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]
+    ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
+        """Every property's metric on one image, and ground truth | prediction images for logging."""
+        metrics: Dict[str, float] = {}
+        images: Dict[str, Tensor] = {}
+        for spec in self.specs:
+            label = batch[spec.label_key].to(self.device)[..., : spec.kind.label_channels(self.num_classes)]
+            valid = spec.kind.valid(label)
+            prediction = outputs[spec.prediction_key]
+            for name, value in METRICS[spec.metric](prediction, label, valid, self.num_classes).items():
+                metrics[spec.metric_prefix + name] = value
+            shown_label = spec.kind.display(spec.kind.label_as_prediction(label, self.num_classes), self.palette)
+            shown = torch.cat([shown_label, outputs[spec.name]], dim=1)
+            images[spec.name] = shown if shown.shape[-1] == 3 else colormaps.apply_colormap(shown)
+        images["depth"] = colormaps.apply_depth_colormap(outputs["depth"], accumulation=outputs["accumulation"])
+        return metrics, images

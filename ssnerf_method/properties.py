@@ -1,0 +1,309 @@
+"""The property registry: the one place that says what each rendered scene property is.
+
+Every other module (field heads, renderers, losses, metrics, data loading, viewer) reads a `PropertySpec` from
+`REGISTRY` instead of naming properties itself. A property is a `kind` (how its values are stored on disk, activated
+per sample, volume-rendered, checked for validity and shown) plus the paper's choices for it: decoder branch, loss,
+weight and metric. Adding a property (e.g. depth) means one new entry here plus its label file in the dataset.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Dict, List, Literal, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from jaxtyping import Float
+from PIL import Image
+from torch import Tensor
+
+from nerfstudio.model_components.renderers import NormalsRenderer, RGBRenderer, SemanticRenderer
+
+Branch = Literal["v", "nv"]
+"""Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
+
+SEMANTIC_IGNORE = 255
+"""Class id of an unlabelled pixel on disk; its rays carry no semantic loss."""
+
+
+class LabelFileError(ValueError):
+    """A property file that cannot be used for training; the message names the file and the fix."""
+
+
+@dataclass
+class RenderContext:
+    """What a kind may need besides samples and weights to turn them into a pixel value."""
+
+    background_color: Optional[Tensor] = None
+    """Background colour for RGB compositing (nerfstudio's `RGBRenderer` semantics)."""
+    world_to_camera: Optional[Float[Tensor, "*bs 3 3"]] = None
+    """Rotation taking world vectors into each ray's camera frame (OpenGL axes)."""
+
+
+def _read_image(path: Path) -> np.ndarray:
+    """Read a PNG as stored (no mode conversion), with one clear error if it is missing or unreadable."""
+    if not path.is_file():
+        raise LabelFileError(f"{path}: file listed in transforms.json does not exist. Add the file or remove its key.")
+    try:
+        with Image.open(path) as image:
+            image.load()
+            return np.asarray(image)
+    except (OSError, ValueError) as err:
+        raise LabelFileError(f"{path}: cannot be read as an image ({err}). Re-export it as a PNG.") from err
+
+
+def _check_size(array: np.ndarray, path: Path, width: int, height: int) -> None:
+    if array.shape[:2] != (height, width):
+        raise LabelFileError(
+            f"{path}: image is {array.shape[1]}x{array.shape[0]} but its frame's camera is {width}x{height}. "
+            "Resize the label to the RGB image's size."
+        )
+
+
+class PropertyKind(ABC):
+    """How one kind of property is stored, predicted per sample, rendered, validated and displayed."""
+
+    ignore_value: float = float("nan")
+    """Label value meaning "no label here" in the training batch."""
+    prediction_suffix: str = ""
+    """Suffix of the model output holding the rendered prediction when it is not itself display-ready."""
+
+    @abstractmethod
+    def head_channels(self, num_classes: int) -> int:
+        """Channels the field head predicts per sample."""
+
+    def label_channels(self, num_classes: int) -> int:
+        """Channels of the label tensor in the batch (defaults to the head's)."""
+        return self.head_channels(num_classes)
+
+    def activation(self, raw: Tensor) -> Tensor:
+        """Per-sample activation applied to the head's raw output."""
+        return raw
+
+    def render(self, values: Tensor, weights: Float[Tensor, "*bs num_samples 1"], context: RenderContext) -> Tensor:
+        """Volume-render per-sample values into the per-ray prediction the loss compares with the label."""
+        return SemanticRenderer()(values, weights)
+
+    def valid(self, label: Tensor) -> Tensor:
+        """Boolean mask of rays whose label exists."""
+        return ~torch.isnan(label).any(dim=-1)
+
+    def read(self, path: Path, width: int, height: int, num_classes: int) -> Float[Tensor, "height width channels"]:
+        """Read and validate a label file."""
+        raise NotImplementedError(f"{type(self).__name__} has no label file")
+
+    def missing(self, width: int, height: int, num_classes: int) -> Float[Tensor, "height width channels"]:
+        """Label tensor for a frame that lacks this property: every pixel ignored."""
+        return torch.full((height, width, self.label_channels(num_classes)), self.ignore_value)
+
+    @abstractmethod
+    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+        """Display-ready image: 3-channel colours or a 1-channel float in [0, 1]."""
+
+    def label_as_prediction(self, label: Tensor, num_classes: int) -> Tensor:
+        """A label in the rendered prediction's layout (for display), unlabelled pixels zeroed."""
+        return torch.nan_to_num(label, nan=0.0)
+
+
+class ColorKind(PropertyKind):
+    """RGB radiance: sigmoid per sample, composited over the background by nerfstudio's `RGBRenderer`."""
+
+    def head_channels(self, num_classes: int) -> int:
+        return 3
+
+    def activation(self, raw: Tensor) -> Tensor:
+        return torch.sigmoid(raw)
+
+    def render(self, values: Tensor, weights: Tensor, context: RenderContext) -> Tensor:
+        background = "last_sample" if context.background_color is None else context.background_color
+        return RGBRenderer(background_color=background)(values, weights)
+
+    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+        return prediction.clamp(0.0, 1.0)
+
+
+class ClassKind(PropertyKind):
+    """Semantic labels: logits per sample, volume-rendered as logits, softmax after rendering (paper Sec. 3.3)."""
+
+    ignore_value = float(SEMANTIC_IGNORE)
+    prediction_suffix = "_logits"
+
+    def head_channels(self, num_classes: int) -> int:
+        return num_classes
+
+    def label_channels(self, num_classes: int) -> int:
+        return 1
+
+    def valid(self, label: Tensor) -> Tensor:
+        return label[..., 0] != SEMANTIC_IGNORE
+
+    def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
+        array = _read_image(path)
+        _check_size(array, path, width, height)
+        if array.ndim != 2 or array.dtype != np.uint8:
+            raise LabelFileError(
+                f"{path}: semantics must be an 8-bit single-channel PNG of class ids, got shape {array.shape} "
+                f"{array.dtype}. Save the class-id map as mode 'L'."
+            )
+        bad = np.unique(array[(array >= num_classes) & (array != SEMANTIC_IGNORE)])
+        if bad.size:
+            raise LabelFileError(
+                f"{path}: class ids {bad.tolist()} are outside semantic_classes (0..{num_classes - 1}; "
+                f"{SEMANTIC_IGNORE} = unlabelled). Add the classes to transforms.json or relabel the pixels."
+            )
+        return torch.from_numpy(array.astype(np.float32))[..., None]
+
+    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+        assert palette is not None, "semantic display needs a class palette"
+        return palette.to(prediction.device)[prediction.argmax(dim=-1)]
+
+    def label_as_prediction(self, label: Tensor, num_classes: int) -> Tensor:
+        ids = label[..., 0].long().clamp(max=num_classes - 1) * self.valid(label)
+        return F.one_hot(ids, num_classes).float()
+
+
+class NormalKind(PropertyKind):
+    """Surface normals, compared and shown in the camera frame as the (n+1)/2 encoding.
+
+    `world` mode (default): the field predicts world-frame vectors, they are volume-rendered, normalised and rotated
+    into each ray's camera frame. `pose` mode (the paper's): the decoder is conditioned on the encoded camera pose and
+    predicts the camera-frame encoding directly (sigmoid per sample).
+    """
+
+    def __init__(self, mode: Literal["world", "pose"] = "world") -> None:
+        self.mode = mode
+
+    def head_channels(self, num_classes: int) -> int:
+        return 3
+
+    def activation(self, raw: Tensor) -> Tensor:
+        return torch.sigmoid(raw) if self.mode == "pose" else raw
+
+    def render(self, values: Tensor, weights: Tensor, context: RenderContext) -> Tensor:
+        if self.mode == "pose":
+            return SemanticRenderer()(values, weights)
+        assert context.world_to_camera is not None, "world-frame normals need each ray's camera rotation"
+        normals = NormalsRenderer()(values, weights, normalize=True)
+        normals = torch.einsum("...ij,...j->...i", context.world_to_camera, normals)
+        return (F.normalize(normals, dim=-1) + 1.0) / 2.0
+
+    def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
+        array = _read_image(path)
+        _check_size(array, path, width, height)
+        if array.ndim != 3 or array.shape[2] != 3 or array.dtype != np.uint8:
+            raise LabelFileError(
+                f"{path}: normals must be an 8-bit 3-channel RGB PNG storing (n+1)/2, got shape {array.shape} "
+                f"{array.dtype}. Save the normal map as RGB."
+            )
+        return torch.from_numpy(array.astype(np.float32) / 255.0)
+
+    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+        return prediction.clamp(0.0, 1.0)
+
+
+class ScalarKind(PropertyKind):
+    """A one-channel map in [0, 1] (shading, keypoint heatmap, edges) stored as an 8-bit grey PNG, value/255."""
+
+    def __init__(self, activation: Literal["sigmoid", "relu"]) -> None:
+        self.activation_name = activation
+
+    def head_channels(self, num_classes: int) -> int:
+        return 1
+
+    def activation(self, raw: Tensor) -> Tensor:
+        return torch.sigmoid(raw) if self.activation_name == "sigmoid" else torch.relu(raw)
+
+    def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
+        array = _read_image(path)
+        _check_size(array, path, width, height)
+        if array.ndim != 2 or array.dtype != np.uint8:
+            raise LabelFileError(
+                f"{path}: expected an 8-bit single-channel PNG (value/255 in [0, 1]), got shape {array.shape} "
+                f"{array.dtype}. Save the map as mode 'L'."
+            )
+        return torch.from_numpy(array.astype(np.float32) / 255.0)[..., None]
+
+    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+        return prediction.clamp(0.0, 1.0)
+
+
+@dataclass(frozen=True)
+class PropertySpec:
+    """One rendered property and the paper's choices for it."""
+
+    name: str
+    """Output name in the model, the viewer and `ns-render`; also the batch key of its label."""
+    short: str
+    """The paper's abbreviation."""
+    kind: PropertyKind
+    file_key: Optional[str]
+    """Per-frame key of its label file in transforms.json (None: nerfstudio loads it, as for RGB)."""
+    branch: Branch
+    """Decoder branch in the paper's final model."""
+    loss: Literal["mse", "l1", "cross_entropy"]
+    """Loss name, implemented in `ssnerf_method/model/losses.py`."""
+    weight: float
+    """Loss weight lambda (paper Sec. 4.1)."""
+    metric: Literal["psnr", "miou", "l1"]
+    """Evaluation metric, implemented in `ssnerf_method/evaluation/metrics.py`."""
+    colormap: str
+    """Display colour mapping: "default" for images already in colour, else a nerfstudio colormap name."""
+
+    @property
+    def prediction_key(self) -> str:
+        """Model output compared with the label (the display image lives under `name`)."""
+        return self.name + self.kind.prediction_suffix
+
+    @property
+    def label_key(self) -> str:
+        """Batch key of the label: nerfstudio's "image" for RGB, else the property name."""
+        return "image" if self.file_key is None else self.name
+
+    @property
+    def metric_prefix(self) -> str:
+        """Prefix of metric names: none for RGB (`psnr`), else the property name (`semantics_miou`)."""
+        return "" if self.file_key is None else f"{self.name}_"
+
+
+REGISTRY: Dict[str, PropertySpec] = {
+    spec.name: spec
+    for spec in (
+        PropertySpec("rgb", "RGB", ColorKind(), None, "v", "mse", 1.0, "psnr", "default"),
+        PropertySpec("semantics", "SL", ClassKind(), "semantics_file_path", "nv", "cross_entropy", 0.04, "miou", "default"),
+        PropertySpec("normals", "SN", NormalKind(), "normals_file_path", "nv", "mse", 1.0, "l1", "default"),
+        PropertySpec("shading", "SH", ScalarKind("sigmoid"), "shading_file_path", "v", "l1", 0.1, "l1", "gray"),
+        PropertySpec("keypoints", "KP", ScalarKind("relu"), "keypoints_file_path", "v", "l1", 2.0, "l1", "gray"),
+        PropertySpec("edges", "ED", ScalarKind("sigmoid"), "edges_file_path", "v", "l1", 0.4, "l1", "gray"),
+    )
+}
+"""Every property the plugin knows. RGB is always rendered; the others are optional."""
+
+OPTIONAL_PROPERTIES: Tuple[str, ...] = tuple(name for name in REGISTRY if name != "rgb")
+
+
+def resolve_properties(
+    names: Sequence[str],
+    branches: Optional[Dict[str, Branch]] = None,
+    weights: Optional[Dict[str, float]] = None,
+    normals_mode: Literal["world", "pose"] = "world",
+) -> List[PropertySpec]:
+    """The specs a model trains: RGB first, then `names` in registry order, with per-run overrides applied."""
+    unknown = [name for name in [*names, *(branches or {}), *(weights or {})] if name not in REGISTRY]
+    if unknown:
+        raise ValueError(f"Unknown properties {unknown}; choose from {list(REGISTRY)}.")
+    chosen = ["rgb", *(name for name in OPTIONAL_PROPERTIES if name in names)]
+    specs = []
+    for name in chosen:
+        spec = REGISTRY[name]
+        if isinstance(spec.kind, NormalKind):
+            spec = replace(spec, kind=NormalKind(normals_mode))
+        spec = replace(
+            spec,
+            branch=(branches or {}).get(name, spec.branch),
+            weight=(weights or {}).get(name, spec.weight),
+        )
+        specs.append(spec)
+    return specs

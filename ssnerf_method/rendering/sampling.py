@@ -1,0 +1,128 @@
+"""Where along each ray the field is evaluated: one interface, two strategies.
+
+`HierarchicalSampling` is the paper's (NeRF's): uniform coarse samples through a coarse field, then importance
+samples drawn from the coarse weights through the fine field; both levels are rendered and supervised.
+`ProposalSampling` is `ssnerf-lite`'s: nerfstudio's proposal sampler with small density-only grids finds the
+surfaces, and only the field's own samples are rendered; the proposals learn through nerfstudio's interlevel loss.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Tuple
+
+import numpy as np
+from torch import Tensor, nn
+
+from nerfstudio.cameras.rays import RayBundle, RaySamples
+from nerfstudio.field_components.field_heads import FieldHeadNames
+from nerfstudio.fields.base_field import Field
+from nerfstudio.model_components.ray_samplers import PDFSampler, ProposalNetworkSampler, UniformSampler
+
+from ssnerf_method.rendering.weights import volume_weights
+
+
+@dataclass
+class SampleLevel:
+    """Samples of one level, the field's outputs at them and their rendering weights."""
+
+    ray_samples: RaySamples
+    field_outputs: Dict
+    weights: Tensor
+
+
+@dataclass
+class SamplingResult:
+    """The supervised levels (last = final prediction) and, for proposal sampling, the proposal levels."""
+
+    levels: List[SampleLevel]
+    weights_list: List[Tensor] = field(default_factory=list)
+    ray_samples_list: List[RaySamples] = field(default_factory=list)
+
+
+def evaluate(field_module: Field, ray_samples: RaySamples) -> SampleLevel:
+    """Run a field on samples and compute their weights."""
+    outputs = field_module(ray_samples)
+    return SampleLevel(ray_samples, outputs, volume_weights(ray_samples, outputs[FieldHeadNames.DENSITY]))
+
+
+class RaySampling(nn.Module):
+    """Interface: a ray bundle in, the evaluated and weighted sample levels out."""
+
+    def forward(self, ray_bundle: RayBundle) -> SamplingResult:
+        raise NotImplementedError
+
+    def training_step_callback(self, step: int) -> None:
+        """Called after each training step (schedules)."""
+
+    def param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        """Parameters by optimizer group name (the method config names an optimizer per group)."""
+        return {"fields": list(self.parameters())}
+
+
+class HierarchicalSampling(RaySampling):
+    """Coarse (uniform, stratified) then fine (PDF of the coarse weights, coarse samples kept) samples."""
+
+    def __init__(self, coarse_field: Field, fine_field: Field, num_coarse: int, num_fine: int) -> None:
+        super().__init__()
+        self.coarse_field = coarse_field
+        self.fine_field = fine_field
+        self.uniform_sampler = UniformSampler(num_samples=num_coarse)
+        self.pdf_sampler = PDFSampler(num_samples=num_fine, include_original=True)
+
+    def forward(self, ray_bundle: RayBundle) -> SamplingResult:
+        coarse = evaluate(self.coarse_field, self.uniform_sampler(ray_bundle))
+        fine_samples = self.pdf_sampler(ray_bundle, coarse.ray_samples, coarse.weights.detach())
+        return SamplingResult(levels=[coarse, evaluate(self.fine_field, fine_samples)])
+
+
+class ProposalSampling(RaySampling):
+    """nerfstudio's proposal sampler in front of one field (as in nerfacto)."""
+
+    def __init__(
+        self,
+        field_module: Field,
+        proposal_networks: nn.ModuleList,
+        num_proposal_samples: Tuple[int, ...],
+        num_field_samples: int,
+        update_every: int = 5,
+        warmup_steps: int = 5000,
+    ) -> None:
+        super().__init__()
+        self.field_module = field_module
+        self.proposal_networks = proposal_networks
+
+        def update_schedule(step: int) -> int:
+            return int(np.clip(np.interp(step, [0, warmup_steps], [0, update_every]), 1, update_every))
+
+        self.sampler = ProposalNetworkSampler(
+            num_nerf_samples_per_ray=num_field_samples,
+            num_proposal_samples_per_ray=num_proposal_samples,
+            num_proposal_network_iterations=len(num_proposal_samples),
+            single_jitter=True,
+            update_sched=update_schedule,
+        )
+
+    def forward(self, ray_bundle: RayBundle) -> SamplingResult:
+        ray_samples, weights_list, ray_samples_list = self.sampler(
+            ray_bundle, density_fns=[network.density_fn for network in self.proposal_networks]
+        )
+        level = evaluate(self.field_module, ray_samples)
+        return SamplingResult(
+            levels=[level],
+            weights_list=[*weights_list, level.weights],
+            ray_samples_list=[*ray_samples_list, ray_samples],
+        )
+
+    def set_anneal(self, anneal: float) -> None:
+        """Anneal the proposal weights before resampling (mip-NeRF 360 Eq. 18), as nerfacto does."""
+        self.sampler.set_anneal(anneal)
+
+    def training_step_callback(self, step: int) -> None:
+        self.sampler.step_cb(step)
+
+    def param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        return {
+            "fields": list(self.field_module.parameters()),
+            "proposal_networks": list(self.proposal_networks.parameters()),
+        }

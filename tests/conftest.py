@@ -1,0 +1,87 @@
+"""Shared fixtures: a tiny dataset in the SS-NeRF format, written from arrays so each test can break one file."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Callable, Dict
+
+import numpy as np
+import pytest
+from PIL import Image
+
+CLASSES = ["void", "wall", "floor", "table"]
+WIDTH, HEIGHT = 16, 12
+
+
+def look_at(position: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Camera-to-world (OpenGL: x right, y up, looking along -z) at `position` looking at `target`."""
+    forward = target - position
+    forward = forward / np.linalg.norm(forward)
+    right = np.cross(forward, np.array([0.0, 0.0, 1.0]))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    c2w = np.eye(4)
+    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, up, -forward, position
+    return c2w
+
+
+def write_tiny_dataset(root: Path, num_frames: int = 6, seed: int = 0) -> Dict:
+    """Write `num_frames` random 16x12 frames with every property; returns the transforms dict."""
+    rng = np.random.default_rng(seed)
+    for folder in ("images", "semantics", "normals", "shading", "keypoints", "edges", "depth"):
+        (root / folder).mkdir(parents=True, exist_ok=True)
+    frames = []
+    for index in range(num_frames):
+        name = f"frame_{index:03d}.png"
+        angle = 2 * np.pi * index / num_frames
+        c2w = look_at(np.array([np.cos(angle), np.sin(angle), 0.2]), np.zeros(3))
+        Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8)).save(root / "images" / name)
+        Image.fromarray(rng.integers(0, len(CLASSES), (HEIGHT, WIDTH), dtype=np.uint8)).save(root / "semantics" / name)
+        Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8)).save(root / "normals" / name)
+        for folder in ("shading", "keypoints", "edges"):
+            Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH), dtype=np.uint8)).save(root / folder / name)
+        Image.fromarray(np.full((HEIGHT, WIDTH), 1500, dtype=np.uint16)).save(root / "depth" / name)
+        frames.append(
+            {
+                "file_path": f"images/{name}",
+                "transform_matrix": c2w.tolist(),
+                "depth_file_path": f"depth/{name}",
+                "semantics_file_path": f"semantics/{name}",
+                "normals_file_path": f"normals/{name}",
+                "shading_file_path": f"shading/{name}",
+                "keypoints_file_path": f"keypoints/{name}",
+                "edges_file_path": f"edges/{name}",
+            }
+        )
+    transforms = {
+        "camera_model": "OPENCV",
+        "fl_x": 14.0, "fl_y": 14.0, "cx": WIDTH / 2, "cy": HEIGHT / 2, "w": WIDTH, "h": HEIGHT,
+        "semantic_classes": CLASSES,
+        "train_filenames": [frame["file_path"] for frame in frames[1:]],
+        "val_filenames": [frames[0]["file_path"]],
+        "test_filenames": [frames[0]["file_path"]],
+        "frames": frames,
+    }
+    (root / "transforms.json").write_text(json.dumps(transforms, indent=2))
+    return transforms
+
+
+@pytest.fixture
+def tiny_dataset(tmp_path: Path) -> Path:
+    root = tmp_path / "tiny"
+    write_tiny_dataset(root)
+    return root
+
+
+@pytest.fixture
+def edit_transforms() -> Callable[[Path, Callable[[Dict], None]], None]:
+    """Apply an in-place edit to a dataset's transforms.json."""
+
+    def edit(root: Path, change: Callable[[Dict], None]) -> None:
+        path = root / "transforms.json"
+        transforms = json.loads(path.read_text())
+        change(transforms)
+        path.write_text(json.dumps(transforms))
+
+    return edit
