@@ -1,0 +1,17 @@
+"""Label generators shared by the synthetic scene and real data: pure numpy (and OpenCV) functions on images."""
+
+from ssnerf_method.labels.edges import canny_edges
+from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_heatmap, splat_keypoints
+from ssnerf_method.labels.normals import backproject_depth, normals_from_depth
+from ssnerf_method.labels.shading import camera_ray_directions, lambertian_shading
+
+__all__ = [
+    "backproject_depth",
+    "camera_ray_directions",
+    "canny_edges",
+    "detect_keypoints",
+    "keypoint_heatmap",
+    "lambertian_shading",
+    "normals_from_depth",
+    "splat_keypoints",
+]

@@ -1,0 +1,612 @@
+"""The procedural furnished room of the default SS-NeRF scene: labelled, textured primitives and their lighting.
+
+The room spans x in [-3, 3] m, y (up) in [0, 3] m and z in [-2.5, 2.5] m. It holds a bed, a bookshelf with books,
+a sofa, a TV on a stand, a table with chairs, a wardrobe, two paintings, a window and small objects, labelled with
+the NYUv2-13 classes. Textures are functions of the hit point with features of a few centimetres or more (plank
+seams, tiles, book spines, painting cells, window bars, fabric checks), so edge and keypoint detectors fire while a
+small NeRF can still fit the images. The furniture layout is fixed; the seed varies colours, book widths and the
+painting's cell colours.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import List, Optional, Sequence, Tuple
+
+import numpy as np
+
+from ssnerf_method.scene.raycast import Box, Cylinder, Primitive, RayHits, Shape, Sphere, Texture
+
+RGB = Tuple[float, float, float]
+
+SEMANTIC_CLASSES: Tuple[str, ...] = (
+    "void",
+    "bed",
+    "books",
+    "ceiling",
+    "chair",
+    "floor",
+    "furniture",
+    "objects",
+    "painting",
+    "sofa",
+    "table",
+    "tv",
+    "wall",
+    "window",
+)
+"""NYUv2-13 classes plus void; a class id is its index."""
+
+SEMANTIC_COLORS: Tuple[Tuple[int, int, int], ...] = (
+    (0, 0, 0),
+    (174, 199, 232),
+    (31, 119, 180),
+    (255, 187, 120),
+    (188, 189, 34),
+    (140, 86, 75),
+    (255, 152, 150),
+    (214, 39, 40),
+    (197, 176, 213),
+    (148, 103, 189),
+    (196, 156, 148),
+    (23, 190, 207),
+    (178, 76, 76),
+    (247, 182, 210),
+)
+"""One distinct display colour (0-255 RGB) per class, in `SEMANTIC_CLASSES` order."""
+
+CLASS_ID = {name: index for index, name in enumerate(SEMANTIC_CLASSES)}
+
+ROOM_MIN: Tuple[float, float, float] = (-3.0, 0.0, -2.5)
+ROOM_MAX: Tuple[float, float, float] = (3.0, 3.0, 2.5)
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Texture helpers: all take points local to the primitive's bounding-box minimum corner.
+
+
+def _face_uv(q: np.ndarray, n: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """In-plane coordinates on each point's face: (horizontal, height) on walls, (x, z) on horizontal faces."""
+    axis = np.abs(n).argmax(axis=1)
+    u = np.where(axis == 0, q[:, 2], q[:, 0])
+    v = np.where(axis == 1, q[:, 2], q[:, 1])
+    return u, v
+
+
+def _face_size(n: np.ndarray, extent: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
+    """Size of each point's face along `_face_uv`'s u and v."""
+    axis = np.abs(n).argmax(axis=1)
+    su = np.where(axis == 0, extent[2], extent[0])
+    sv = np.where(axis == 1, extent[2], extent[1])
+    return su, sv
+
+
+def _on_front(n: np.ndarray, front: Tuple[int, int]) -> np.ndarray:
+    """Whether each point lies on the face whose outward normal is `sign * e_axis` for `front = (axis, sign)`."""
+    axis, sign = front
+    return n[:, axis] * sign > 0.5
+
+
+def _hash(a: np.ndarray, b: Optional[np.ndarray] = None) -> np.ndarray:
+    """Deterministic pseudo-random value in [0, 1) per integer cell (for per-plank / per-tile variation)."""
+    a = a.astype(np.int64)
+    b = np.zeros_like(a) if b is None else b.astype(np.int64)
+    h = ((a * 73856093) ^ (b * 19349663)) % 1000003
+    return ((h * 7919 + 104729) % 1000003) / 1000003.0
+
+
+def _fill(n: int, color: RGB) -> np.ndarray:
+    return np.tile(np.asarray(color, dtype=np.float64), (n, 1))
+
+
+def _rect_border(u: np.ndarray, v: np.ndarray, su: np.ndarray, sv: np.ndarray) -> np.ndarray:
+    """Distance of each point to the nearest edge of its face."""
+    return np.minimum(np.minimum(u, su - u), np.minimum(v, sv - v))
+
+
+@dataclass(frozen=True)
+class Solid:
+    """Uniform colour."""
+
+    color: RGB
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        return _fill(len(q), self.color)
+
+
+@dataclass(frozen=True)
+class WoodGrain:
+    """Wood: a soft, wavy sinusoidal grain (period ~25 cm) along one local axis."""
+
+    color: RGB
+    axis: int = 0
+    period: float = 0.25
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        other = q[:, (self.axis + 1) % 3] + q[:, (self.axis + 2) % 3]
+        phase = q[:, self.axis] / self.period + 0.6 * np.sin(2 * np.pi * other / 0.7)
+        return _fill(len(q), self.color) * (1.0 + 0.08 * np.sin(2 * np.pi * phase))[:, None]
+
+
+@dataclass(frozen=True)
+class Planks:
+    """Wooden floor: planks along x with staggered ends, per-plank tone and dark 2 cm seams."""
+
+    color: RGB
+    seam: RGB
+    width: float = 0.2
+    length: float = 1.2
+    seam_width: float = 0.02
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        row = np.floor(q[:, 2] / self.width)
+        along = q[:, 0] + _hash(row) * self.length
+        column = np.floor(along / self.length)
+        tone = 0.8 + 0.35 * _hash(row, column) + 0.05 * np.sin(2 * np.pi * along / 0.37 + row)
+        albedo = _fill(len(q), self.color) * tone[:, None]
+        seam = (np.mod(q[:, 2], self.width) < self.seam_width) | (np.mod(along, self.length) < self.seam_width)
+        albedo[seam] = self.seam
+        return albedo
+
+
+@dataclass(frozen=True)
+class Tiles:
+    """Square tiles with grout lines on each face (ceiling)."""
+
+    color: RGB
+    line: RGB
+    size: float = 0.6
+    line_width: float = 0.025
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        u, v = _face_uv(q, n)
+        albedo = _fill(len(q), self.color)
+        albedo[(np.mod(u, self.size) < self.line_width) | (np.mod(v, self.size) < self.line_width)] = self.line
+        return albedo
+
+
+@dataclass(frozen=True)
+class WallPaint:
+    """Wall: painted (optionally wallpaper-striped) above a darker wainscot with a rail and a light skirting."""
+
+    upper: RGB
+    lower: RGB
+    rail: RGB
+    stripe: Optional[RGB] = None
+    stripe_period: float = 0.4
+    rail_height: float = 0.9
+    rail_width: float = 0.05
+    skirting_height: float = 0.1
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        u, v = _face_uv(q, n)
+        albedo = _fill(len(q), self.upper)
+        if self.stripe is not None:
+            albedo[np.mod(u, self.stripe_period) < self.stripe_period / 2] = self.stripe
+        albedo[v < self.rail_height + self.rail_width] = self.rail
+        albedo[v < self.rail_height] = self.lower
+        albedo[v < self.skirting_height] = self.rail
+        return albedo
+
+
+@dataclass(frozen=True)
+class Checker:
+    """Two-colour checkerboard on each face (fabric, quilting)."""
+
+    color_a: RGB
+    color_b: RGB
+    size: float = 0.15
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        u, v = _face_uv(q, n)
+        odd = (np.floor(u / self.size) + np.floor(v / self.size)) % 2 == 1
+        albedo = _fill(len(q), self.color_a)
+        albedo[odd] = self.color_b
+        return albedo
+
+
+@dataclass(frozen=True)
+class Stripes:
+    """Bands cycling through `colors` along one local axis (duvet, vases, boxes, foliage)."""
+
+    colors: Tuple[RGB, ...]
+    period: float
+    axis: int
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        index = np.floor(q[:, self.axis] / self.period).astype(np.int64) % len(self.colors)
+        return np.asarray(self.colors, dtype=np.float64)[index]
+
+
+@dataclass(frozen=True)
+class Rug:
+    """Rug (top face): border band, a thin accent line, and a field of diamonds."""
+
+    border: RGB
+    field: RGB
+    accent: RGB
+    border_width: float = 0.12
+    diamond: float = 0.3
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        u, v = _face_uv(q, n)
+        edge = _rect_border(u, v, *_face_size(n, extent))
+        diamonds = (np.floor((u + v) / self.diamond) + np.floor((u - v) / self.diamond)) % 2 == 1
+        albedo = _fill(len(q), self.field)
+        albedo[diamonds] = self.accent
+        albedo[edge < self.border_width + 0.04] = self.accent
+        albedo[edge < self.border_width] = self.border
+        return albedo
+
+
+@dataclass(frozen=True)
+class Cabinet:
+    """Furniture front with `cols` x `rows` doors/drawers (dark gaps) and a handle near each panel's top."""
+
+    color: RGB
+    front: Tuple[int, int]
+    cols: int = 2
+    rows: int = 1
+    gap: RGB = (0.12, 0.09, 0.07)
+    handle: Optional[RGB] = (0.75, 0.75, 0.72)
+    gap_width: float = 0.015
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        albedo = WoodGrain(self.color, axis=1)(q, n, extent)
+        front = _on_front(n, self.front)
+        u, v = _face_uv(q[front], n[front])
+        su, sv = _face_size(n[front], extent)
+        pu, pv = su / self.cols, sv / self.rows
+        iu, iv = np.mod(u, pu), np.mod(v, pv)
+        face = albedo[front]
+        if self.handle is not None:
+            handle = (np.abs(iu - pu / 2) < 0.06) & (np.abs(iv - (pv - 0.08)) < 0.015)
+            face[handle] = self.handle
+        gap = (iu < self.gap_width) | (iv < self.gap_width) | (_rect_border(u, v, su, sv) < 2 * self.gap_width)
+        face[gap] = self.gap
+        albedo[front] = face
+        return albedo
+
+
+@dataclass(frozen=True)
+class Books:
+    """A row of books (front = spines, other faces = pages): book `i` spans `edges[i]..edges[i+1]` along x."""
+
+    edges: Tuple[float, ...]
+    colors: Tuple[RGB, ...]
+    front: Tuple[int, int] = (2, 1)
+    pages: RGB = (0.9, 0.87, 0.78)
+    gap: RGB = (0.1, 0.08, 0.06)
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        book = np.clip(np.searchsorted(np.asarray(self.edges), q[:, 0], side="right") - 1, 0, len(self.colors) - 1)
+        spine = np.asarray(self.colors)[book]
+        height = q[:, 1] / extent[1]
+        label = (height > 0.6) & (height < 0.72)
+        spine[label] = 0.45 * spine[label] + 0.55 * np.array([0.95, 0.85, 0.45])
+        albedo = np.where(_on_front(n, self.front)[:, None], spine, np.asarray(self.pages))
+        edges = np.asarray(self.edges)
+        nearest = np.abs(q[:, 0][:, None] - edges[None, :]).min(axis=1)
+        albedo[nearest < 0.006] = self.gap
+        return albedo
+
+
+@dataclass(frozen=True)
+class Mondrian:
+    """Painting in the style of Mondrian: a gold frame around a 3x3 grid of colour cells with black bars."""
+
+    cells: Tuple[RGB, ...]
+    front: Tuple[int, int]
+    splits_u: Tuple[float, float] = (0.3, 0.72)
+    splits_v: Tuple[float, float] = (0.38, 0.75)
+    frame: RGB = (0.7, 0.55, 0.25)
+    frame_width: float = 0.05
+    bar_width: float = 0.025
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        albedo = _fill(len(q), self.frame)
+        front = _on_front(n, self.front)
+        u, v = _face_uv(q[front], n[front])
+        su, sv = _face_size(n[front], extent)
+        s, t = u / su, v / sv
+        col = np.searchsorted(np.asarray(self.splits_u), s)
+        row = np.searchsorted(np.asarray(self.splits_v), t)
+        face = np.asarray(self.cells)[row * 3 + col]
+        bar_u = np.abs(s[:, None] - np.asarray(self.splits_u)).min(axis=1) * su < self.bar_width / 2
+        bar_v = np.abs(t[:, None] - np.asarray(self.splits_v)).min(axis=1) * sv < self.bar_width / 2
+        face[bar_u | bar_v] = (0.05, 0.05, 0.05)
+        inside = _rect_border(u, v, su, sv) >= self.frame_width
+        albedo[front] = np.where(inside[:, None], face, albedo[front])
+        return albedo
+
+
+@dataclass(frozen=True)
+class Landscape:
+    """Painting of a landscape: sky, a sun disc, a zig-zag mountain range and a lake, in a dark frame."""
+
+    sky: RGB
+    sun: RGB
+    mountain: RGB
+    lake: RGB
+    front: Tuple[int, int]
+    frame: RGB = (0.25, 0.15, 0.08)
+    frame_width: float = 0.05
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        albedo = _fill(len(q), self.frame)
+        front = _on_front(n, self.front)
+        u, v = _face_uv(q[front], n[front])
+        su, sv = _face_size(n[front], extent)
+        s, t = u / su, v / sv
+        face = _fill(len(s), self.sky) * (0.8 + 0.25 * t)[:, None]
+        face[(s - 0.72) ** 2 * (su / sv) ** 2 + (t - 0.72) ** 2 < 0.13**2] = self.sun
+        ridge = 0.3 + 0.3 * np.abs(np.mod(s * 3.0, 1.0) - 0.5) * 2 * (1 - 0.3 * s)
+        face[t < ridge] = self.mountain
+        face[t < 0.22] = self.lake
+        inside = _rect_border(u, v, su, sv) >= self.frame_width
+        albedo[front] = np.where(inside[:, None], face, albedo[front])
+        return albedo
+
+
+@dataclass(frozen=True)
+class Television:
+    """TV: dark bezel, near-black screen with a soft diagonal reflection band, a small light logo."""
+
+    front: Tuple[int, int]
+    body: RGB = (0.1, 0.1, 0.11)
+    screen: RGB = (0.02, 0.025, 0.04)
+    bezel_width: float = 0.035
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        albedo = _fill(len(q), self.body)
+        front = _on_front(n, self.front)
+        u, v = _face_uv(q[front], n[front])
+        su, sv = _face_size(n[front], extent)
+        s, t = u / su, v / sv
+        face = _fill(len(s), self.screen)
+        glare = 0.6 * s + 0.4 * t
+        face[(glare > 0.55) & (glare < 0.68)] = (0.1, 0.11, 0.14)
+        face[_rect_border(u, v, su, sv) < self.bezel_width] = self.body
+        face[(np.abs(u - su / 2) < 0.04) & (v < self.bezel_width * 0.7) & (v > self.bezel_width * 0.3)] = 0.7
+        albedo[front] = face
+        return albedo
+
+
+@dataclass(frozen=True)
+class WindowView:
+    """Window (emissive): frame and cross bars around a bright sky over green hills."""
+
+    front: Tuple[int, int]
+    frame: RGB = (0.42, 0.36, 0.3)
+    frame_width: float = 0.06
+    bar_width: float = 0.04
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        albedo = _fill(len(q), self.frame)
+        front = _on_front(n, self.front)
+        u, v = _face_uv(q[front], n[front])
+        su, sv = _face_size(n[front], extent)
+        s, t = u / su, v / sv
+        top, horizon = np.array([0.55, 0.72, 0.98]), np.array([0.88, 0.93, 1.0])
+        face = horizon + (top - horizon) * t[:, None]
+        hills = t < 0.3 + 0.08 * np.sin(2 * np.pi * 1.3 * s + 0.5)
+        face[hills] = (0.35, 0.6, 0.3)
+        face[hills & (t < 0.15 + 0.05 * np.sin(2 * np.pi * 2.1 * s))] = (0.25, 0.45, 0.22)
+        bars = (np.abs(u - su / 2) < self.bar_width / 2) | (np.abs(t - 0.62) * sv < self.bar_width / 2)
+        face[bars | (_rect_border(u, v, su, sv) < self.frame_width)] = self.frame
+        albedo[front] = face
+        return albedo
+
+
+@dataclass(frozen=True)
+class BeachBall:
+    """Sphere split into six coloured meridian segments with a white cap."""
+
+    colors: Tuple[RGB, ...]
+
+    def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
+        segment = np.floor((np.arctan2(n[:, 2], n[:, 0]) + np.pi) / (2 * np.pi) * len(self.colors)).astype(np.int64)
+        albedo = np.asarray(self.colors, dtype=np.float64)[segment % len(self.colors)]
+        albedo[n[:, 1] > 0.85] = 0.95
+        return albedo
+
+
+# --------------------------------------------------------------------------------------------------------------------
+# Lighting and the room itself.
+
+
+@dataclass(frozen=True)
+class PointLight:
+    """Isotropic light with a soft distance falloff `intensity / (1 + (d / falloff)^2)`."""
+
+    position: Tuple[float, float, float]
+    intensity: float
+    falloff: float = 2.5
+
+
+@dataclass(frozen=True)
+class Room:
+    """The scene: primitives plus a simple shadowless lighting model (ambient + Lambertian lights)."""
+
+    primitives: Tuple[Primitive, ...]
+    lights: Tuple[PointLight, ...]
+    ambient: float
+    sun_direction: Tuple[float, float, float]
+    """Direction the window's fill light travels (unit vector)."""
+    sun_intensity: float
+
+    def primitive(self, name: str) -> Primitive:
+        """The primitive called `name`."""
+        for primitive in self.primitives:
+            if primitive.name == name:
+                return primitive
+        raise KeyError(name)
+
+    def shade(self, hits: RayHits) -> np.ndarray:
+        """Linear RGB radiance in [0, 1] of each hit: albedo x light, or the albedo itself if emissive."""
+        light = np.full(len(hits.t), self.ambient)
+        for lamp in self.lights:
+            to_light = np.asarray(lamp.position) - hits.position
+            dist = np.linalg.norm(to_light, axis=1)
+            cosine = np.einsum("ij,ij->i", hits.normal, to_light) / np.maximum(dist, 1e-6)
+            light += lamp.intensity * np.clip(cosine, 0.0, None) / (1.0 + (dist / lamp.falloff) ** 2)
+        light += self.sun_intensity * np.clip(-hits.normal @ np.asarray(self.sun_direction), 0.0, None)
+        rgb = np.where(hits.emissive[:, None], hits.albedo, hits.albedo * light[:, None])
+        return np.clip(rgb, 0.0, 1.0)
+
+
+class _RoomBuilder:
+    """Collects primitives; draws colour jitter and book widths from the seed's random generator."""
+
+    def __init__(self, seed: int) -> None:
+        self.rng = np.random.default_rng([seed, 0])
+        self.primitives: List[Primitive] = []
+
+    def color(self, rgb: RGB, amount: float = 0.08) -> RGB:
+        jittered = np.clip(np.asarray(rgb) * (1.0 + self.rng.uniform(-amount, amount, 3)), 0.0, 1.0)
+        return (float(jittered[0]), float(jittered[1]), float(jittered[2]))
+
+    def add(self, name: str, shape: Shape, semantic: str, texture: Texture, emissive: bool = False) -> None:
+        self.primitives.append(Primitive(name, shape, CLASS_ID[semantic], texture, emissive))
+
+    def box(self, name: str, lo: Sequence[float], hi: Sequence[float], semantic: str, texture: Texture) -> None:
+        self.add(name, Box(tuple(map(float, lo)), tuple(map(float, hi))), semantic, texture)
+
+    def book_row(self, name: str, x0: float, x1: float, y0: float, height: float, z0: float, z1: float) -> None:
+        """Books of random widths (5-11 cm) and colours filling x0..x1 on a shelf board at height y0."""
+        edges = [0.0]
+        while edges[-1] < x1 - x0 - 0.05:
+            edges.append(min(edges[-1] + float(self.rng.uniform(0.05, 0.11)), x1 - x0))
+        palette = [
+            (0.7, 0.12, 0.1),
+            (0.1, 0.25, 0.6),
+            (0.12, 0.45, 0.2),
+            (0.85, 0.7, 0.15),
+            (0.45, 0.2, 0.5),
+            (0.9, 0.9, 0.85),
+            (0.2, 0.2, 0.22),
+            (0.85, 0.45, 0.15),
+        ]
+        colors = [self.color(palette[i]) for i in self.rng.integers(0, len(palette), len(edges) - 1)]
+        texture = Books(edges=tuple(edges), colors=tuple(colors))
+        self.box(name, (x0, y0, z0), (x0 + edges[-1], y0 + height, z1), "books", texture)
+
+    def chair(self, name: str, x0: float, x1: float, z0: float, z1: float, back_at_z0: bool, texture: Texture) -> None:
+        """Chair with a seat at 0.43-0.47 m, four legs and a backrest on the z0 (or z1) side."""
+        t = 0.04
+        self.box(f"{name}_seat", (x0, 0.43, z0), (x1, 0.47, z1), "chair", texture)
+        zb = z0 if back_at_z0 else z1 - t
+        self.box(f"{name}_back", (x0, 0.47, zb), (x1, 0.95, zb + t), "chair", texture)
+        for i, (lx, lz) in enumerate([(x0, z0), (x1 - t, z0), (x0, z1 - t), (x1 - t, z1 - t)]):
+            self.box(f"{name}_leg{i}", (lx, 0.0, lz), (lx + t, 0.43, lz + t), "chair", texture)
+
+
+def build_room(seed: int = 0) -> Room:
+    """The furnished room; `seed` varies colours, book widths and painting cells, never the furniture layout."""
+    b = _RoomBuilder(seed)
+    c = b.color
+
+    # Shell: floor, ceiling and four walls as boxes outside the room volume.
+    b.box("floor", (-3.2, -0.2, -2.7), (3.2, 0.0, 2.7), "floor", Planks(c((0.62, 0.43, 0.26)), (0.25, 0.16, 0.1)))
+    b.box("ceiling", (-3.2, 3.0, -2.7), (3.2, 3.2, 2.7), "ceiling", Tiles(c((0.92, 0.92, 0.88)), (0.6, 0.6, 0.58)))
+    rail = (0.93, 0.92, 0.88)
+    b.box("wall_left", (-3.2, 0, -2.7), (-3.0, 3.0, 2.7), "wall",
+          WallPaint(c((0.82, 0.78, 0.62)), c((0.45, 0.55, 0.5)), rail, stripe=c((0.74, 0.68, 0.5))))
+    b.box("wall_right", (3.0, 0, -2.7), (3.2, 3.0, 2.7), "wall",
+          WallPaint(c((0.75, 0.82, 0.86)), c((0.35, 0.42, 0.55)), rail))
+    b.box("wall_back", (-3.0, 0, -2.7), (3.0, 3.0, -2.5), "wall",
+          WallPaint(c((0.86, 0.76, 0.7)), c((0.55, 0.35, 0.3)), rail))
+    b.box("wall_front", (-3.0, 0, 2.5), (3.0, 3.0, 2.7), "wall",
+          WallPaint(c((0.8, 0.84, 0.72)), c((0.4, 0.45, 0.3)), rail, stripe=c((0.7, 0.76, 0.62)), stripe_period=0.5))
+    b.box("rug", (-1.6, 0.0, -0.9), (0.4, 0.012, 0.9), "floor",
+          Rug(c((0.55, 0.12, 0.12)), c((0.85, 0.75, 0.55)), c((0.2, 0.3, 0.5))))
+    for i, (x, z) in enumerate([(-0.6, 0.0), (1.6, -1.4)]):
+        b.add(f"ceiling_lamp{i}", Cylinder(x, z, 0.22, 2.93, 3.0), "objects", Solid((1.0, 0.97, 0.88)), emissive=True)
+
+    # Window and paintings on the walls.
+    b.add("window", Box((2.97, 1.0, -0.2), (3.0, 2.3, 1.3)), "window", WindowView(front=(0, -1)), emissive=True)
+    cells = [(0.95, 0.95, 0.92), (0.85, 0.1, 0.1), (0.1, 0.2, 0.7), (0.95, 0.8, 0.1), (0.95, 0.95, 0.92),
+             (0.1, 0.1, 0.1), (0.95, 0.95, 0.92), (0.2, 0.6, 0.3), (0.95, 0.95, 0.92)]
+    order = b.rng.permutation(len(cells))
+    b.box("painting_back", (-0.95, 1.2, -2.5), (0.45, 2.05, -2.47), "painting",
+          Mondrian(cells=tuple(c(cells[i]) for i in order), front=(2, 1)))
+    b.box("painting_left", (-3.0, 1.25, -0.7), (-2.97, 1.95, 0.5), "painting",
+          Landscape(c((0.55, 0.75, 0.95)), (0.98, 0.75, 0.2), c((0.35, 0.4, 0.45)), c((0.15, 0.35, 0.6)), front=(0, 1)))
+
+    # Bed with headboard, duvet and pillows against the back wall; nightstand with a vase.
+    wood_dark = c((0.4, 0.26, 0.16))
+    b.box("bed_frame", (0.9, 0, -2.45), (2.5, 0.3, -0.45), "bed", WoodGrain(wood_dark, axis=2))
+    b.box("bed_headboard", (0.9, 0, -2.5), (2.5, 1.1, -2.42), "bed",
+          Cabinet(wood_dark, front=(2, 1), cols=3, rows=1, handle=None, gap_width=0.02))
+    b.box("bed_mattress", (0.95, 0.3, -2.4), (2.45, 0.5, -0.5), "bed", Solid(c((0.92, 0.92, 0.9))))
+    b.box("bed_duvet", (0.92, 0.3, -1.7), (2.48, 0.56, -0.47), "bed",
+          Stripes((c((0.2, 0.35, 0.65)), c((0.9, 0.9, 0.88)), c((0.75, 0.3, 0.25))), period=0.16, axis=2))
+    b.box("bed_pillow0", (1.05, 0.5, -2.35), (1.6, 0.64, -1.95), "bed", Solid(c((0.95, 0.95, 0.95))))
+    b.box("bed_pillow1", (1.8, 0.5, -2.35), (2.35, 0.64, -1.95), "bed", Solid(c((0.95, 0.88, 0.6))))
+    b.box("nightstand", (2.55, 0, -2.5), (2.98, 0.55, -2.1), "furniture",
+          Cabinet(c((0.75, 0.6, 0.4)), front=(2, 1), cols=1, rows=2))
+    b.add("nightstand_vase", Cylinder(2.76, -2.3, 0.07, 0.55, 0.8), "objects",
+          Stripes((c((0.2, 0.5, 0.7)), c((0.95, 0.95, 0.9))), period=0.05, axis=1))
+
+    # Bookshelf with four rows of books in the back-left corner.
+    shelf = WoodGrain(c((0.7, 0.52, 0.32)), axis=0)
+    b.box("shelf_back", (-2.7, 0, -2.5), (-1.3, 2.0, -2.47), "furniture", shelf)
+    b.box("shelf_side0", (-2.7, 0, -2.5), (-2.66, 2.0, -2.15), "furniture", shelf)
+    b.box("shelf_side1", (-1.34, 0, -2.5), (-1.3, 2.0, -2.15), "furniture", shelf)
+    boards = [0.0, 0.5, 1.0, 1.5, 1.96]
+    for i, y in enumerate(boards):
+        b.box(f"shelf_board{i}", (-2.66, y, -2.47), (-1.34, y + 0.04, -2.15), "furniture", shelf)
+    for i, (y, height, x0, x1) in enumerate(
+        [(0.04, 0.3, -2.66, -1.45), (0.54, 0.26, -2.5, -1.34), (1.04, 0.32, -2.66, -1.7), (1.54, 0.28, -2.66, -1.5)]
+    ):
+        b.book_row(f"books{i}", x0, x1, y, height, -2.45, -2.2)
+
+    # Sofa against the left wall.
+    fabric = Checker(c((0.3, 0.45, 0.4)), c((0.2, 0.32, 0.3)), size=0.15)
+    b.box("sofa_base", (-2.95, 0, -1.0), (-2.1, 0.42, 0.9), "sofa", fabric)
+    b.box("sofa_back", (-2.95, 0.42, -1.0), (-2.7, 0.95, 0.9), "sofa", fabric)
+    arm = Solid(c((0.18, 0.27, 0.25)))
+    b.box("sofa_arm0", (-2.95, 0, -1.2), (-2.1, 0.65, -1.0), "sofa", arm)
+    b.box("sofa_arm1", (-2.95, 0, 0.9), (-2.1, 0.65, 1.1), "sofa", arm)
+
+    # TV on a stand against the front wall, with a vase.
+    b.box("tv_stand", (-1.5, 0, 2.1), (0.1, 0.5, 2.5), "furniture",
+          Cabinet(c((0.3, 0.3, 0.32)), front=(2, -1), cols=3, rows=1))
+    b.box("tv", (-1.2, 0.8, 2.38), (-0.2, 1.4, 2.45), "tv", Television(front=(2, -1)))
+    b.box("tv_foot", (-0.8, 0.5, 2.3), (-0.6, 0.8, 2.42), "tv", Solid((0.1, 0.1, 0.11)))
+    b.add("tv_vase", Cylinder(-1.38, 2.3, 0.06, 0.5, 0.78), "objects",
+          Stripes((c((0.8, 0.3, 0.2)), c((0.95, 0.85, 0.6))), period=0.07, axis=1))
+
+    # Table with two chairs near the window, a vase and a fruit on it.
+    table = WoodGrain(c((0.6, 0.4, 0.22)), axis=0)
+    b.box("table_top", (1.2, 0.72, 0.3), (2.2, 0.77, 1.2), "table", table)
+    for i, (x, z) in enumerate([(1.24, 0.34), (2.1, 0.34), (1.24, 1.1), (2.1, 1.1)]):
+        b.box(f"table_leg{i}", (x, 0, z), (x + 0.06, 0.72, z + 0.06), "table", table)
+    chair = WoodGrain(c((0.65, 0.2, 0.15)), axis=1)
+    b.chair("chair0", 1.47, 1.93, -0.2, 0.25, back_at_z0=True, texture=chair)
+    b.chair("chair1", 1.47, 1.93, 1.25, 1.7, back_at_z0=False, texture=chair)
+    b.add("table_vase", Cylinder(1.55, 0.75, 0.07, 0.77, 1.05), "objects",
+          Stripes((c((0.9, 0.9, 0.85)), c((0.1, 0.3, 0.6)), c((0.9, 0.6, 0.1))), period=0.06, axis=1))
+    b.add("table_fruit", Sphere((1.9, 0.84, 0.8), 0.07), "objects", Solid(c((0.95, 0.5, 0.1))))
+
+    # Wardrobe in the front-right corner with a storage box on top.
+    b.box("wardrobe", (2.05, 0, 2.0), (2.95, 2.1, 2.5), "furniture",
+          Cabinet(c((0.85, 0.82, 0.75)), front=(2, -1), cols=2, rows=1, gap=(0.35, 0.33, 0.3)))
+    b.box("wardrobe_box", (2.2, 2.1, 2.1), (2.6, 2.35, 2.4), "objects",
+          Stripes((c((0.7, 0.55, 0.35)), c((0.55, 0.4, 0.25))), period=0.1, axis=0))
+
+    # Potted plant in the front-left corner, a beach ball on the floor.
+    b.add("plant_pot", Cylinder(-2.65, 2.2, 0.18, 0.0, 0.4), "objects",
+          Stripes((c((0.7, 0.35, 0.2)), c((0.55, 0.25, 0.15))), period=0.1, axis=1))
+    b.add("plant_leaves", Sphere((-2.65, 0.75, 2.2), 0.35), "objects",
+          Stripes((c((0.2, 0.5, 0.2)), c((0.12, 0.35, 0.12))), period=0.08, axis=1))
+    b.add("ball", Sphere((-1.9, 0.15, 1.7), 0.15), "objects",
+          BeachBall((c((0.9, 0.15, 0.1)), c((0.95, 0.85, 0.1)), c((0.1, 0.4, 0.85)))))
+
+    return Room(
+        primitives=tuple(b.primitives),
+        lights=(PointLight((-0.6, 2.8, 0.0), 0.7), PointLight((1.6, 2.8, -1.4), 0.7)),
+        ambient=0.4,
+        sun_direction=(-0.894, -0.447, 0.0),
+        sun_intensity=0.2,
+    )
