@@ -65,6 +65,7 @@ class SSNeRFField(Field):
         pose_conditioned: feed the encoded camera pose to F_dec^nv (the paper's normal modelling).
         density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
+        implementation: "tcnn" or "torch" for the spherical-harmonics encoding.
     """
 
     def __init__(
@@ -78,6 +79,7 @@ class SSNeRFField(Field):
         pose_conditioned: bool = False,
         density_activation: Literal["relu", "trunc_exp"] = "relu",
         density_noise: float = 0.0,
+        implementation: Literal["tcnn", "torch"] = "torch",
     ) -> None:
         super().__init__()
         self.specs = {spec.name: spec for spec in specs}
@@ -85,9 +87,8 @@ class SSNeRFField(Field):
         self.spatial_distortion = SceneContraction(order=float("inf"))
         self.density_activation = density_activation
         self.density_noise = density_noise
-        self.direction_encoding_name = direction_encoding
         if direction_encoding == "sh":
-            self.direction_encoding: nn.Module = SHEncoding(levels=4)
+            self.direction_encoding: nn.Module = SHEncoding(levels=4, implementation=implementation)
         else:
             self.direction_encoding = NeRFEncoding(in_dim=3, num_frequencies=4, min_freq_exp=0.0, max_freq_exp=3.0,
                                                    include_input=True)
@@ -120,8 +121,8 @@ class SSNeRFField(Field):
         inputs: List[Tensor] = [feature]
         if branch == "v":
             directions = ray_samples.frustums.directions
-            if self.direction_encoding_name == "sh":
-                directions = get_normalized_directions(directions)
+            if getattr(self.direction_encoding, "tcnn_encoding", None) is not None:
+                directions = get_normalized_directions(directions)  # tcnn's SH takes [0, 1]; the torch path unit vectors
             inputs.append(self.direction_encoding(directions))
         elif self.pose_encoding is not None:
             if ray_samples.metadata is None or POSE_METADATA_KEY not in ray_samples.metadata:

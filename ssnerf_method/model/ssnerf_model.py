@@ -151,6 +151,7 @@ class SSNeRFModel(Model):
             pose_conditioned=self.config.normals_mode == "pose",
             density_activation=self.config.density_activation,
             density_noise=self.config.density_noise,
+            implementation=self.config.implementation,
         )
 
     def _build_sampling(self) -> RaySampling:

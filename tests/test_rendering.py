@@ -1,0 +1,345 @@
+"""Volume rendering, per-kind renderers, losses and metrics against hand-computed cases."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import torch
+import torch.nn.functional as F
+
+from nerfstudio.cameras.rays import RayBundle, RaySamples
+from nerfstudio.data.scene_box import SceneBox
+from nerfstudio.field_components.field_heads import FieldHeadNames
+
+from ssnerf_method.evaluation.metrics import METRICS, l1_metrics, miou_metrics, psnr_metrics
+from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY
+from ssnerf_method.model.losses import LOSSES, cross_entropy_loss, l1_loss, mse_loss
+from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
+from ssnerf_method.properties import (
+    SEMANTIC_IGNORE,
+    ClassKind,
+    NormalKind,
+    RenderContext,
+    ScalarKind,
+)
+from ssnerf_method.rendering.sampling import RaySampling, SampleLevel, SamplingResult
+from ssnerf_method.rendering.weights import nerfacc_weights, volume_weights
+
+STARTS = [0.0, 0.5, 1.5]
+ENDS = [0.5, 1.5, 1.75]
+SIGMAS = [1.0, 2.0, 4.0]
+
+
+def hand_weights() -> torch.Tensor:
+    """w_m = T_m (1 - exp(-sigma_m delta_m)), T_m = exp(-sum_{k<m} sigma_k delta_k), written out."""
+    d0, d1, d2 = 0.5, 1.0, 0.25
+    s0, s1, s2 = SIGMAS
+    w0 = 1.0 * (1 - math.exp(-s0 * d0))
+    w1 = math.exp(-s0 * d0) * (1 - math.exp(-s1 * d1))
+    w2 = math.exp(-s0 * d0 - s1 * d1) * (1 - math.exp(-s2 * d2))
+    return torch.tensor([w0, w1, w2])
+
+
+def make_ray_samples(num_rays: int = 1, starts=STARTS, ends=ENDS, c2w: torch.Tensor | None = None) -> RaySamples:
+    metadata = {}
+    if c2w is not None:
+        metadata[POSE_METADATA_KEY] = c2w.reshape(1, 12).expand(num_rays, 12).clone()
+    bundle = RayBundle(
+        origins=torch.zeros(num_rays, 3),
+        directions=torch.tensor([[-1.0, 0.0, 0.0]]).expand(num_rays, 3).clone(),
+        pixel_area=torch.ones(num_rays, 1),
+        camera_indices=torch.zeros(num_rays, 1, dtype=torch.long),
+        metadata=metadata,
+    )
+    bin_starts = torch.tensor(starts).view(1, -1, 1).expand(num_rays, -1, 1).clone()
+    bin_ends = torch.tensor(ends).view(1, -1, 1).expand(num_rays, -1, 1).clone()
+    return bundle.get_ray_samples(bin_starts, bin_ends)
+
+
+def densities(num_rays: int = 1) -> torch.Tensor:
+    return torch.tensor(SIGMAS).view(1, -1, 1).expand(num_rays, -1, 1).clone()
+
+
+# ---------------------------------------------------------------------------------------------------- weights
+
+
+def test_volume_weights_hand_computed() -> None:
+    weights = volume_weights(make_ray_samples(), densities())
+    assert weights.shape == (1, 3, 1)
+    assert torch.allclose(weights[0, :, 0], hand_weights(), atol=1e-6)
+    # total opacity = 1 - exp(-sum sigma delta)
+    assert torch.isclose(weights.sum(), torch.tensor(1 - math.exp(-(0.5 + 2.0 + 1.0))), atol=1e-6)
+
+
+def test_volume_weights_zero_density_and_opaque_first_sample() -> None:
+    zero = volume_weights(make_ray_samples(), torch.zeros(1, 3, 1))
+    assert torch.equal(zero, torch.zeros(1, 3, 1))
+    opaque = volume_weights(make_ray_samples(), torch.tensor([[[1e4], [1.0], [1.0]]]))
+    assert torch.allclose(opaque[0, :, 0], torch.tensor([1.0, 0.0, 0.0]), atol=1e-6)
+
+
+def test_nerfacc_weights_agree_with_torch_path() -> None:
+    torch.manual_seed(0)
+    num_rays, num_samples = 4, 7
+    edges = torch.sort(torch.rand(num_rays, num_samples + 1) * 3, dim=-1).values
+    bundle = RayBundle(
+        origins=torch.zeros(num_rays, 3), directions=torch.tensor([[0.0, 0.0, 1.0]]).expand(num_rays, 3).clone(),
+        pixel_area=torch.ones(num_rays, 1),
+    )
+    samples = bundle.get_ray_samples(edges[:, :-1, None], edges[:, 1:, None])
+    sigmas = torch.rand(num_rays, num_samples, 1) * 5
+    expected = volume_weights(samples, sigmas)
+    got = nerfacc_weights(samples, sigmas)
+    assert got.shape == expected.shape
+    assert torch.allclose(got, expected, atol=1e-5)
+    # and the hand case
+    assert torch.allclose(nerfacc_weights(make_ray_samples(), densities())[0, :, 0], hand_weights(), atol=1e-6)
+
+
+# ---------------------------------------------------------------------------------------------------- kinds
+
+
+def test_scalar_and_semantic_rendering_is_weighted_sum() -> None:
+    weights = hand_weights().view(1, 3, 1)
+    values = torch.tensor([[[0.2], [0.9], [0.4]]])
+    expected = (hand_weights() * torch.tensor([0.2, 0.9, 0.4])).sum()
+    for activation in ("sigmoid", "relu"):
+        rendered = ScalarKind(activation).render(values, weights, RenderContext())
+        assert rendered.shape == (1, 1)
+        assert torch.isclose(rendered[0, 0], expected)
+    logits = torch.tensor([[[1.0, -2.0, 0.5], [0.0, 3.0, 1.0], [2.0, 2.0, -1.0]]])
+    rendered = ClassKind().render(logits, weights, RenderContext())
+    assert torch.allclose(rendered[0], (hand_weights()[:, None] * logits[0]).sum(0))
+
+
+def test_scalar_activations() -> None:
+    raw = torch.tensor([-2.0, 0.0, 3.0])
+    assert torch.allclose(ScalarKind("sigmoid").activation(raw), torch.sigmoid(raw))
+    assert torch.equal(ScalarKind("relu").activation(raw), torch.tensor([0.0, 0.0, 3.0]))
+    assert torch.equal(ClassKind().activation(raw), raw)  # logits stay logits per sample
+
+
+LOGITS = torch.tensor([[[10.0, 0.0], [0.0, 1.0]]])  # one ray, two samples, two classes
+HALF = torch.tensor([[[0.5], [0.5]]])
+
+
+def test_softmax_after_rendering_differs_from_rendering_probabilities() -> None:
+    rendered_logits = ClassKind().render(LOGITS, HALF, RenderContext())
+    assert torch.allclose(rendered_logits, torch.tensor([[5.0, 0.5]]))
+    after = torch.softmax(rendered_logits, dim=-1)
+    before = (HALF * torch.softmax(LOGITS, dim=-1)).sum(-2)
+    assert not torch.allclose(after, before, atol=1e-2)
+    assert after[0, 0] > 0.98 and 0.6 < before[0, 0] < 0.7
+
+
+class FixedSampling(RaySampling):
+    """A sampling strategy returning fixed samples, field outputs and weights (to test the model's rendering)."""
+
+    def __init__(self, result: SamplingResult) -> None:
+        super().__init__()
+        self.result = result
+
+    def forward(self, ray_bundle: RayBundle) -> SamplingResult:
+        return self.result
+
+
+def tiny_model(properties=("semantics", "normals", "shading"), **overrides):
+    config = SSNeRFModelConfig(
+        properties=properties, encoder="hashgrid", grid_levels=2, grid_max_res=16, grid_log2_hashmap_size=8,
+        grid_hidden_dim=16, grid_feature_dim=8, decoder_width=16, num_coarse_samples=4, num_fine_samples=4,
+        density_noise=0.0, **overrides,
+    )
+    model = config.setup(
+        scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])),
+        num_train_data=1,
+        metadata={"semantic_classes": ["a", "b"], "available_properties": ("semantics", "normals", "shading")},
+    )
+    return model
+
+
+# camera looking along world -x (OpenGL: camera -z = world -x), camera up = world +z
+LOOK_MINUS_X = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 1.0, 0.0]])  # columns: x_c, y_c, z_c in world
+C2W = torch.cat([LOOK_MINUS_X, torch.tensor([[3.0], [0.0], [0.0]])], dim=-1)
+
+
+def test_model_renders_semantic_logits_then_softmax_and_cross_entropy() -> None:
+    model = tiny_model()
+    model.eval()
+    samples = make_ray_samples(1, starts=[0.0, 0.5], ends=[0.5, 1.0], c2w=C2W)
+    # rendered logits favour class 1, rendered probabilities would favour class 0
+    logits = torch.tensor([[[0.0, 10.0], [1.0, 0.0]]])
+    weights = torch.tensor([[[0.3], [0.7]]])
+    prob_render = (weights * torch.softmax(logits, -1)).sum(-2)[0]
+    assert prob_render.argmax() == 0
+    outputs = {
+        "rgb": torch.full((1, 2, 3), 0.5),
+        "semantics": logits,
+        "normals": torch.tensor([[[1.0, 0.0, 0.0], [1.0, 0.0, 0.0]]]),
+        "shading": torch.tensor([[[0.2], [0.6]]]),
+        FieldHeadNames.DENSITY: torch.ones(1, 2, 1),
+    }
+    model.sampling = FixedSampling(SamplingResult(levels=[SampleLevel(samples, outputs, weights)]))
+    bundle = RayBundle(
+        origins=torch.tensor([[3.0, 0.0, 0.0]]), directions=torch.tensor([[-1.0, 0.0, 0.0]]),
+        pixel_area=torch.ones(1, 1), camera_indices=torch.zeros(1, 1, dtype=torch.long),
+        metadata={POSE_METADATA_KEY: C2W.reshape(1, 12)},
+    )
+    rendered = model.get_outputs(bundle)
+    assert torch.allclose(rendered["semantics_logits"], torch.tensor([[0.7, 3.0]]))
+    # display: palette colour of the argmax of the rendered logits (class 1), not of rendered probabilities (0)
+    assert not torch.allclose(model.palette[0], model.palette[1])
+    assert torch.allclose(rendered["semantics"], model.palette[1][None])
+    assert torch.allclose(rendered["shading"], torch.tensor([[0.48]]))
+    # world normal +x faces this camera: camera frame (0, 0, 1) -> encoding (0.5, 0.5, 1)
+    assert torch.allclose(rendered["normals"], torch.tensor([[0.5, 0.5, 1.0]]), atol=1e-6)
+
+    batch = {
+        "image": torch.full((1, 3), 0.5),
+        "semantics": torch.tensor([[1.0]]),
+        "normals": torch.tensor([[0.5, 0.5, 1.0]]),
+        "shading": torch.tensor([[0.48]]),
+    }
+    losses = model.get_loss_dict(rendered, batch, model.get_metrics_dict(rendered, batch))
+    expected_ce = -torch.log_softmax(torch.tensor([0.7, 3.0]), dim=-1)[1]
+    assert torch.isclose(losses["semantics_loss"], 0.04 * expected_ce, atol=1e-5)
+    assert torch.isclose(cross_entropy_loss(rendered["semantics_logits"], batch["semantics"], torch.tensor([True])),
+                         expected_ce, atol=1e-5)
+    # a pure softmax-then-render model would give a different loss: the test above discriminates
+    assert not torch.isclose(expected_ce, -torch.log(prob_render[1]), atol=1e-2)
+    assert torch.isclose(losses["normals_loss"], torch.tensor(0.0), atol=1e-10)
+    assert torch.isclose(losses["shading_loss"], torch.tensor(0.0), atol=1e-7)
+    assert set(losses) == {"rgb_loss", "semantics_loss", "normals_loss", "shading_loss"}
+
+
+# ---------------------------------------------------------------------------------------------------- normals
+
+
+def render_world_normals(world_normals: torch.Tensor, c2w_rotation: torch.Tensor) -> torch.Tensor:
+    num = world_normals.shape[0]
+    values = world_normals[:, None, :].expand(num, 2, 3) * 2.0  # not unit length: the renderer normalises
+    weights = torch.tensor([[[0.3], [0.5]]]).expand(num, 2, 1)
+    context = RenderContext(world_to_camera=c2w_rotation.T.expand(num, 3, 3))
+    return NormalKind("world").render(values, weights, context)
+
+
+def test_world_normals_rotated_into_camera_frame() -> None:
+    world = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])
+    rendered = render_world_normals(world, LOOK_MINUS_X)
+    expected = torch.tensor([
+        [0.5, 0.5, 1.0],  # facing the camera
+        [0.5, 1.0, 0.5],  # world up -> camera up
+        [1.0, 0.5, 0.5],  # world +y -> camera right
+        [0.5, 0.5, 0.0],  # facing away
+    ])
+    assert torch.allclose(rendered, expected, atol=1e-6)
+
+
+def test_world_normals_with_conftest_look_at() -> None:
+    """The same with a camera built like the tiny dataset's: at (2, 0, 0) looking at the origin."""
+    import numpy as np
+
+    from conftest import look_at
+
+    c2w = torch.tensor(look_at(np.array([2.0, 0.0, 0.0]), np.zeros(3)), dtype=torch.float32)
+    rendered = render_world_normals(torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0]]), c2w[:3, :3])
+    assert torch.allclose(rendered, torch.tensor([[0.5, 0.5, 1.0], [0.5, 1.0, 0.5]]), atol=1e-6)
+
+
+def test_world_normals_need_camera_rotation() -> None:
+    with pytest.raises(AssertionError):
+        NormalKind("world").render(torch.ones(1, 2, 3), torch.ones(1, 2, 1) / 2, RenderContext())
+
+
+def test_pose_normals_pass_encoding_through() -> None:
+    kind = NormalKind("pose")
+    values = torch.tensor([[[0.2, 0.4, 0.9], [0.6, 0.8, 0.1]]])
+    weights = torch.tensor([[[0.25], [0.75]]])
+    # no rotation even when a camera rotation is given
+    rendered = kind.render(values, weights, RenderContext(world_to_camera=LOOK_MINUS_X.T[None]))
+    assert torch.allclose(rendered, (weights * values).sum(-2))
+    assert torch.allclose(kind.activation(torch.tensor([0.0, 100.0])), torch.tensor([0.5, 1.0]))
+    assert torch.equal(NormalKind("world").activation(torch.tensor([-3.0])), torch.tensor([-3.0]))
+
+
+# ---------------------------------------------------------------------------------------------------- losses
+
+
+def test_losses_mask_invalid_rays() -> None:
+    prediction = torch.tensor([[0.2, 0.4, 0.6], [0.1, 0.1, 0.1], [0.9, 0.9, 0.9]], requires_grad=True)
+    label = torch.tensor([[0.3, 0.4, 0.4], [float("nan")] * 3, [1.0, 1.0, 0.6]])
+    valid = NormalKind().valid(label)
+    assert valid.tolist() == [True, False, True]
+    mse = mse_loss(prediction, label, valid)
+    expected_mse = ((0.1**2 + 0 + 0.2**2) + (0.1**2 + 0.1**2 + 0.3**2)) / 6
+    assert torch.isclose(mse, torch.tensor(expected_mse))
+    l1 = l1_loss(prediction, label, valid)
+    assert torch.isclose(l1, torch.tensor((0.1 + 0 + 0.2 + 0.1 + 0.1 + 0.3) / 6))
+    (mse + l1).backward()
+    assert torch.isfinite(prediction.grad).all()
+    assert torch.equal(prediction.grad[1], torch.zeros(3))  # the unlabelled ray gets no gradient
+
+
+def test_cross_entropy_ignores_unlabelled_pixels() -> None:
+    logits = torch.tensor([[2.0, 0.0, -1.0], [0.0, 5.0, 0.0], [1.0, 1.0, 1.0]])
+    label = torch.tensor([[0.0], [float(SEMANTIC_IGNORE)], [2.0]])
+    valid = ClassKind().valid(label)
+    assert valid.tolist() == [True, False, True]
+    loss = cross_entropy_loss(logits, label, valid)
+    log_probs = torch.log_softmax(logits, dim=-1)
+    assert torch.isclose(loss, -(log_probs[0, 0] + log_probs[2, 2]) / 2)
+
+
+@pytest.mark.parametrize("name", ["mse", "l1", "cross_entropy"])
+def test_all_invalid_gives_zero_with_gradient_path(name: str) -> None:
+    prediction = torch.randn(4, 3, requires_grad=True)
+    if name == "cross_entropy":
+        label = torch.full((4, 1), float(SEMANTIC_IGNORE))
+        valid = ClassKind().valid(label)
+    else:
+        label = torch.full((4, 3), float("nan"))
+        valid = NormalKind().valid(label)
+    assert not valid.any()
+    loss = LOSSES[name](prediction, label, valid)
+    assert loss.item() == 0.0
+    assert loss.requires_grad
+    loss.backward()
+    assert torch.equal(prediction.grad, torch.zeros(4, 3))
+
+
+# ---------------------------------------------------------------------------------------------------- metrics
+
+
+def test_psnr_metrics() -> None:
+    image = torch.rand(8, 8, 3, generator=torch.Generator().manual_seed(0))
+    same = psnr_metrics(image, image, torch.ones(8, 8, dtype=torch.bool), 0)
+    assert same["psnr"] > 60 and same["ssim"] > 0.99
+    off = psnr_metrics(torch.full((8, 8, 3), 0.5), torch.full((8, 8, 3), 0.6), torch.ones(8, 8, dtype=torch.bool), 0)
+    assert off["psnr"] == pytest.approx(20.0, abs=1e-3)  # mse 0.01
+
+
+def test_l1_metric_hand_computed() -> None:
+    prediction = torch.tensor([[[0.2], [0.5]], [[1.0], [0.0]]])
+    label = torch.tensor([[[0.4], [0.5]], [[float("nan")], [0.3]]])
+    valid = ScalarKind("sigmoid").valid(label)
+    result = l1_metrics(prediction, label, valid, 0)
+    assert result["l1"] == pytest.approx((0.2 + 0.0 + 0.3) / 3)
+    assert math.isnan(l1_metrics(prediction, torch.full_like(label, float("nan")),
+                                 torch.zeros(2, 2, dtype=torch.bool), 0)["l1"])
+
+
+def test_miou_hand_computed() -> None:
+    num_classes = 4
+    labels = torch.tensor([[0, 0, 1], [1, 2, SEMANTIC_IGNORE]], dtype=torch.float32)[..., None]
+    predicted = torch.tensor([[0, 1, 1], [1, 3, 0]])
+    logits = F.one_hot(predicted, num_classes).float() * 3.0
+    valid = ClassKind().valid(labels)
+    result = miou_metrics(logits, labels, valid, num_classes)
+    # class 0: TP 1, union 2; class 1: TP 2, union 3; class 2: TP 0, union 1; class 3 absent from labels: ignored
+    assert result["miou"] == pytest.approx((1 / 2 + 2 / 3 + 0) / 3)
+    assert result["acc"] == pytest.approx(3 / 5)
+    assert METRICS["miou"] is miou_metrics
+    perfect = miou_metrics(F.one_hot(labels[..., 0].long().clamp(max=3), num_classes).float(), labels, valid, num_classes)
+    assert perfect["miou"] == pytest.approx(1.0)
+    nothing = miou_metrics(logits, torch.full_like(labels, SEMANTIC_IGNORE), torch.zeros(2, 3, dtype=torch.bool), 4)
+    assert math.isnan(nothing["miou"])

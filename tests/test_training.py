@@ -1,0 +1,199 @@
+"""Short CPU training runs of `ssnerf-lite` and `ssnerf`: losses drop, every property is supervised, and a saved
+checkpoint loads back through nerfstudio's `eval_setup` and renders every property."""
+
+from __future__ import annotations
+
+import copy
+from pathlib import Path
+from typing import Dict, List, Tuple
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from nerfstudio.engine.trainer import Trainer, TrainerConfig
+from nerfstudio.utils.eval_utils import eval_setup
+
+from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
+from ssnerf_method.properties import OPTIONAL_PROPERTIES
+
+from conftest import CLASSES, HEIGHT, WIDTH, write_tiny_dataset
+
+EXPECTED_OUTPUTS = {
+    "rgb": 3, "semantics": 3, "semantics_logits": len(CLASSES), "normals": 3, "shading": 1, "keypoints": 1, "edges": 1,
+}
+
+
+@pytest.fixture(scope="module", autouse=True)
+def single_thread():
+    """One intra-op thread: on a 2-core machine shared with other jobs, torch's thread pool stalls badly (a step
+    takes ~0.03 s on one thread and up to 2 s on two when the other core is busy)."""
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def write_learnable_dataset(root: Path) -> Path:
+    """The tiny dataset's cameras and layout, with smooth labels instead of per-frame noise.
+
+    Every map is a gentle vertical gradient around a value far from an untrained field's output (sigmoid 0.5, ReLU
+    0, uniform class logits), so each property's loss has room to drop within a few dozen steps.
+    """
+    transforms = write_tiny_dataset(root)
+    rows = np.linspace(0.0, 1.0, HEIGHT)[:, None] * np.ones((1, WIDTH))
+    for frame in transforms["frames"]:
+        name = Path(frame["file_path"]).name
+        rgb = np.stack([0.9 - 0.2 * rows, 0.15 + 0.1 * rows, np.full_like(rows, 0.1)], axis=-1)
+        Image.fromarray((rgb * 255).astype(np.uint8)).save(root / "images" / name)
+        Image.fromarray(np.where(rows < 0.5, 1, 2).astype(np.uint8)).save(root / "semantics" / name)
+        normals = np.zeros((HEIGHT, WIDTH, 3), dtype=np.uint8)
+        normals[..., :] = (128, 128, 255)
+        Image.fromarray(normals).save(root / "normals" / name)
+        Image.fromarray(((0.85 + 0.1 * rows) * 255).astype(np.uint8)).save(root / "shading" / name)
+        Image.fromarray(np.full((HEIGHT, WIDTH), 180, dtype=np.uint8)).save(root / "keypoints" / name)
+        Image.fromarray(((0.05 + 0.1 * rows) * 255).astype(np.uint8)).save(root / "edges" / name)
+    return root
+
+
+def lite_config(data: Path, output: Path, iterations: int) -> TrainerConfig:
+    config = copy.deepcopy(ssnerf_lite_config)
+    config.pipeline.datamanager.data = data
+    config.pipeline.datamanager.train_num_rays_per_batch = 256
+    config.pipeline.datamanager.eval_num_rays_per_batch = 256
+    model = config.pipeline.model
+    model.grid_levels = 4
+    model.grid_max_res = 64
+    model.grid_log2_hashmap_size = 14
+    model.grid_hidden_dim = 32
+    model.decoder_width = 32
+    model.num_proposal_samples = (24,)
+    model.proposal_max_res = (64,)
+    model.num_field_samples = 16
+    model.eval_num_rays_per_chunk = 1024
+    _common(config, output, iterations)
+    return config
+
+
+def _common(config: TrainerConfig, output: Path, iterations: int) -> None:
+    config.machine.device_type = "cpu"
+    config.machine.num_devices = 1
+    config.vis = "tensorboard"
+    config.viewer.quit_on_train_completion = True
+    config.output_dir = output
+    config.experiment_name = "test"
+    config.timestamp = "run"
+    config.max_num_iterations = iterations
+    config.steps_per_eval_batch = 10**6
+    config.steps_per_eval_image = 10**6
+    config.steps_per_eval_all_images = 10**6
+    config.logging.local_writer.enable = False
+
+
+def train(config: TrainerConfig) -> Tuple[Trainer, List[float], List[Dict[str, float]]]:
+    """Run nerfstudio's Trainer as `ns-train` does, recording each step's total loss and loss dict."""
+    torch.manual_seed(0)
+    config.save_config()
+    trainer = config.setup(local_rank=0, world_size=1)
+    trainer.setup()
+    totals: List[float] = []
+    dicts: List[Dict[str, float]] = []
+    original = trainer.train_iteration
+
+    def recording(step: int):
+        loss, loss_dict, metrics_dict = original(step)
+        totals.append(float(loss))
+        dicts.append({key: float(value) for key, value in loss_dict.items()})
+        return loss, loss_dict, metrics_dict
+
+    trainer.train_iteration = recording  # type: ignore[method-assign]
+    trainer.train()
+    return trainer, totals, dicts
+
+
+@pytest.fixture(scope="module")
+def lite_run(tmp_path_factory):
+    root = tmp_path_factory.mktemp("learnable")
+    data = write_learnable_dataset(root / "data")
+    config = lite_config(data, root / "outputs", iterations=60)
+    config.steps_per_save = 25
+    config.save_only_latest_checkpoint = True
+    trainer, totals, dicts = train(config)
+    return config, trainer, totals, dicts
+
+
+def test_lite_losses_drop(lite_run) -> None:
+    _, _, totals, _ = lite_run
+    assert len(totals) == 60
+    assert all(np.isfinite(totals))
+    first = float(np.mean(totals[:3]))
+    last = float(np.mean(totals[-10:]))
+    assert last < 0.6 * first, (first, last)
+
+
+def test_lite_every_property_is_supervised(lite_run) -> None:
+    _, _, _, dicts = lite_run
+    expected = {f"{name}_loss" for name in ("rgb", *OPTIONAL_PROPERTIES)} | {"interlevel_loss", "distortion_loss"}
+    for loss_dict in dicts:
+        assert set(loss_dict) == expected
+    for name in ("rgb", *OPTIONAL_PROPERTIES):
+        values = [loss_dict[f"{name}_loss"] for loss_dict in dicts]
+        assert np.mean(values[-10:]) < np.mean(values[:3]), name
+
+
+def test_lite_checkpoint_round_trip(lite_run) -> None:
+    config, _, _, _ = lite_run
+    checkpoints = sorted(config.get_checkpoint_dir().glob("*.ckpt"))
+    assert [path.name for path in checkpoints] == ["step-000000059.ckpt"]  # only the latest is kept
+    config_path = config.get_base_dir() / "config.yml"
+    assert config_path.is_file()
+
+    _, pipeline, checkpoint_path, step = eval_setup(config_path)
+    assert checkpoint_path == checkpoints[0] and step == 59
+    dataset = pipeline.datamanager.eval_dataset
+    assert [Path(p).name for p in dataset.image_filenames] == ["frame_000.png"]
+    camera = dataset.cameras[0:1]
+    outputs = pipeline.model.get_outputs_for_camera(camera)
+    for name, channels in EXPECTED_OUTPUTS.items():
+        assert outputs[name].shape == (HEIGHT, WIDTH, channels), name
+        assert torch.isfinite(outputs[name]).all(), name
+    # the loaded weights are the trained ones: the test view's colour is learnt, not the init's grey
+    image = dataset[0]["image"]
+    assert torch.mean((outputs["rgb"] - image) ** 2) < 0.03
+
+    metrics = pipeline.get_average_eval_image_metrics()
+    for key in ("psnr", "semantics_miou", "normals_l1", "shading_l1", "keypoints_l1", "edges_l1"):
+        assert key in metrics and np.isfinite(metrics[key]), key
+    assert metrics["psnr"] > 12
+    assert 0.0 <= metrics["semantics_miou"] <= 1.0
+
+
+def test_hierarchical_pose_normals_runs_on_cpu(tmp_path: Path) -> None:
+    data = write_learnable_dataset(tmp_path / "data")
+    config = copy.deepcopy(ssnerf_config)
+    config.pipeline.datamanager.data = data
+    config.pipeline.datamanager.train_num_rays_per_batch = 64
+    config.pipeline.datamanager.eval_num_rays_per_batch = 64
+    model = config.pipeline.model
+    model.encoder_layers = 2
+    model.encoder_width = 32
+    model.decoder_width = 32
+    model.num_coarse_samples = 8
+    model.num_fine_samples = 8
+    model.normals_mode = "pose"
+    model.eval_num_rays_per_chunk = 1024
+    _common(config, tmp_path / "outputs", iterations=4)
+    config.steps_per_save = 10**6
+    trainer, totals, dicts = train(config)
+    assert len(totals) == 4 and all(np.isfinite(totals))
+    expected = {f"{prefix}{name}_loss" for prefix in ("", "level0_") for name in ("rgb", *OPTIONAL_PROPERTIES)}
+    for loss_dict in dicts:
+        assert set(loss_dict) == expected
+    pipeline = trainer.pipeline
+    pipeline.eval()
+    outputs = pipeline.model.get_outputs_for_camera(pipeline.datamanager.eval_dataset.cameras[0:1])
+    for name, channels in EXPECTED_OUTPUTS.items():
+        assert outputs[name].shape == (HEIGHT, WIDTH, channels), name
+    assert ((outputs["normals"] >= 0) & (outputs["normals"] <= 1)).all()
+    assert "level0_semantics_logits" in outputs
