@@ -55,12 +55,22 @@ def _read_image(path: Path) -> np.ndarray:
         raise LabelFileError(f"{path}: cannot be read as an image ({err}). Re-export it as a PNG.") from err
 
 
-def _check_size(array: np.ndarray, path: Path, width: int, height: int) -> None:
+def _read_uint8(path: Path, width: int, height: int, channels: int, content: str) -> np.ndarray:
+    """Read an 8-bit label PNG and check its size against the frame's camera and its channel count."""
+    array = _read_image(path)
     if array.shape[:2] != (height, width):
         raise LabelFileError(
             f"{path}: image is {array.shape[1]}x{array.shape[0]} but its frame's camera is {width}x{height}. "
             "Resize the label to the RGB image's size."
         )
+    layout_ok = array.ndim == 2 if channels == 1 else array.ndim == 3 and array.shape[2] == channels
+    if not layout_ok or array.dtype != np.uint8:
+        mode = "single-channel (mode 'L')" if channels == 1 else "RGB"
+        raise LabelFileError(
+            f"{path}: {content} must be an 8-bit {mode} PNG, got shape {array.shape} {array.dtype}. "
+            f"Save it as an 8-bit {mode} PNG."
+        )
+    return array
 
 
 class PropertyKind(ABC):
@@ -141,13 +151,7 @@ class ClassKind(PropertyKind):
         return label[..., 0] != SEMANTIC_IGNORE
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
-        array = _read_image(path)
-        _check_size(array, path, width, height)
-        if array.ndim != 2 or array.dtype != np.uint8:
-            raise LabelFileError(
-                f"{path}: semantics must be an 8-bit single-channel PNG of class ids, got shape {array.shape} "
-                f"{array.dtype}. Save the class-id map as mode 'L'."
-            )
+        array = _read_uint8(path, width, height, 1, "semantics (class ids)")
         bad = np.unique(array[(array >= num_classes) & (array != SEMANTIC_IGNORE)])
         if bad.size:
             raise LabelFileError(
@@ -191,13 +195,7 @@ class NormalKind(PropertyKind):
         return (F.normalize(normals, dim=-1) + 1.0) / 2.0
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
-        array = _read_image(path)
-        _check_size(array, path, width, height)
-        if array.ndim != 3 or array.shape[2] != 3 or array.dtype != np.uint8:
-            raise LabelFileError(
-                f"{path}: normals must be an 8-bit 3-channel RGB PNG storing (n+1)/2, got shape {array.shape} "
-                f"{array.dtype}. Save the normal map as RGB."
-            )
+        array = _read_uint8(path, width, height, 3, "normals ((n+1)/2 per channel)")
         return torch.from_numpy(array.astype(np.float32) / 255.0)
 
     def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
@@ -217,13 +215,7 @@ class ScalarKind(PropertyKind):
         return torch.sigmoid(raw) if self.activation_name == "sigmoid" else torch.relu(raw)
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
-        array = _read_image(path)
-        _check_size(array, path, width, height)
-        if array.ndim != 2 or array.dtype != np.uint8:
-            raise LabelFileError(
-                f"{path}: expected an 8-bit single-channel PNG (value/255 in [0, 1]), got shape {array.shape} "
-                f"{array.dtype}. Save the map as mode 'L'."
-            )
+        array = _read_uint8(path, width, height, 1, "this map (value/255 in [0, 1])")
         return torch.from_numpy(array.astype(np.float32) / 255.0)[..., None]
 
     def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:

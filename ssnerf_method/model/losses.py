@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from typing import Callable, Dict
 
-import torch
 import torch.nn.functional as F
 from jaxtyping import Bool, Float
 from torch import Tensor

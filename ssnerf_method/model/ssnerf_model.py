@@ -7,7 +7,7 @@ Everything per property (heads, rendering, loss, metric, display) is read from t
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, Optional, Tuple, Type
+from typing import Dict, List, Literal, Tuple, Type
 
 import numpy as np
 import torch
