@@ -168,36 +168,18 @@ class SSNeRFModel(Model):
             for max_res in self.config.proposal_max_res
         )
         return ProposalSampling(
-            self._build_field(), proposals, self.config.num_proposal_samples, self.config.num_field_samples
+            self._build_field(), proposals, self.config.num_proposal_samples, self.config.num_field_samples,
+            anneal_steps=self.config.proposal_weights_anneal_max_num_iters,
         )
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
         return self.sampling.param_groups()
 
     def get_training_callbacks(self, training_callback_attributes: TrainingCallbackAttributes) -> List[TrainingCallback]:
-        callbacks = [
-            TrainingCallback(
-                where_to_run=[TrainingCallbackLocation.AFTER_TRAIN_ITERATION],
-                update_every_num_iters=1,
-                func=self.sampling.training_step_callback,
-            )
+        return [
+            TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.sampling.before_training_step),
+            TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self.sampling.after_training_step),
         ]
-        if isinstance(self.sampling, ProposalSampling):
-            sampling = self.sampling
-            max_iters = self.config.proposal_weights_anneal_max_num_iters
-
-            def set_anneal(step: int) -> None:
-                fraction = float(np.clip(step / max_iters, 0, 1))
-                sampling.set_anneal(10.0 * fraction / (9.0 * fraction + 1.0))
-
-            callbacks.append(
-                TrainingCallback(
-                    where_to_run=[TrainingCallbackLocation.BEFORE_TRAIN_ITERATION],
-                    update_every_num_iters=1,
-                    func=set_anneal,
-                )
-            )
-        return callbacks
 
     def _render_level(self, level: SampleLevel, context: RenderContext, prefix: str) -> Dict[str, Tensor]:
         """Render every property of one sample level into `prefix + prediction_key` outputs."""
@@ -209,10 +191,10 @@ class SSNeRFModel(Model):
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, Tensor | List]:
         result: SamplingResult = self.sampling(ray_bundle)
         pose = (ray_bundle.metadata or {}).get(POSE_METADATA_KEY)
-        context = RenderContext(world_to_camera=None if pose is None else pose.view(*pose.shape[:-1], 3, 4)[..., :3].transpose(-1, -2))
+        rotation = None if pose is None else pose.view(*pose.shape[:-1], 3, 4)[..., :3]
+        context = RenderContext(world_to_camera=None if rotation is None else rotation.transpose(-1, -2))
         outputs: Dict[str, Tensor | List] = {}
-        for index, level in enumerate(result.levels):
-            prefix = "" if index == len(result.levels) - 1 else f"level{index}_"
+        for prefix, level in zip(self.level_prefixes, result.levels):
             outputs.update(self._render_level(level, context, prefix))
         final = result.levels[-1]
         for spec in self.specs:
@@ -227,8 +209,8 @@ class SSNeRFModel(Model):
 
     @property
     def level_prefixes(self) -> List[str]:
-        """Output prefixes of the supervised levels (the coarse level of hierarchical sampling is "level0_")."""
-        return ["level0_", ""] if isinstance(self.sampling, HierarchicalSampling) else [""]
+        """Output prefixes of the supervised levels: "" for the final one, "level0_", ... for earlier ones."""
+        return [f"level{index}_" for index in range(self.sampling.num_levels - 1)] + [""]
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
         rgb = next(spec for spec in self.specs if spec.label_key == "image")

@@ -49,10 +49,16 @@ def evaluate(field_module: Field, ray_samples: RaySamples) -> SampleLevel:
 class RaySampling(nn.Module):
     """Interface: a ray bundle in, the evaluated and weighted sample levels out."""
 
+    num_levels: int = 1
+    """Number of supervised levels `forward` returns."""
+
     def forward(self, ray_bundle: RayBundle) -> SamplingResult:
         raise NotImplementedError
 
-    def training_step_callback(self, step: int) -> None:
+    def before_training_step(self, step: int) -> None:
+        """Called before each training step (schedules)."""
+
+    def after_training_step(self, step: int) -> None:
         """Called after each training step (schedules)."""
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:
@@ -62,6 +68,8 @@ class RaySampling(nn.Module):
 
 class HierarchicalSampling(RaySampling):
     """Coarse (uniform, stratified) then fine (PDF of the coarse weights, coarse samples kept) samples."""
+
+    num_levels = 2
 
     def __init__(self, coarse_field: Field, fine_field: Field, num_coarse: int, num_fine: int) -> None:
         super().__init__()
@@ -87,10 +95,12 @@ class ProposalSampling(RaySampling):
         num_field_samples: int,
         update_every: int = 5,
         warmup_steps: int = 5000,
+        anneal_steps: int = 1000,
     ) -> None:
         super().__init__()
         self.field_module = field_module
         self.proposal_networks = proposal_networks
+        self.anneal_steps = anneal_steps
 
         def update_schedule(step: int) -> int:
             return int(np.clip(np.interp(step, [0, warmup_steps], [0, update_every]), 1, update_every))
@@ -114,11 +124,12 @@ class ProposalSampling(RaySampling):
             ray_samples_list=[*ray_samples_list, ray_samples],
         )
 
-    def set_anneal(self, anneal: float) -> None:
-        """Anneal the proposal weights before resampling (mip-NeRF 360 Eq. 18), as nerfacto does."""
-        self.sampler.set_anneal(anneal)
+    def before_training_step(self, step: int) -> None:
+        """Anneal the proposal weights before resampling (mip-NeRF 360 Eq. 18, slope 10), as nerfacto does."""
+        fraction = float(np.clip(step / self.anneal_steps, 0, 1))
+        self.sampler.set_anneal(10.0 * fraction / (9.0 * fraction + 1.0))
 
-    def training_step_callback(self, step: int) -> None:
+    def after_training_step(self, step: int) -> None:
         self.sampler.step_cb(step)
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:
