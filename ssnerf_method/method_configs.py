@@ -45,7 +45,7 @@ ssnerf_config = TrainerConfig(
         },
     },
     viewer=ViewerConfig(num_rays_per_chunk=4096),
-    vis="viewer",
+    vis="viewer+tensorboard",
 )
 
 ssnerf_lite_config = TrainerConfig(
@@ -84,7 +84,7 @@ ssnerf_lite_config = TrainerConfig(
         },
     },
     viewer=ViewerConfig(num_rays_per_chunk=8192),
-    vis="viewer",
+    vis="viewer+tensorboard",
 )
 
 ssnerf = MethodSpecification(

@@ -9,7 +9,6 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Dict, List, Literal, Tuple, Type
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
