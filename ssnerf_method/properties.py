@@ -25,6 +25,9 @@ from nerfstudio.model_components.renderers import NormalsRenderer, RGBRenderer, 
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
 
+LossName = Literal["mse", "l1", "cross_entropy"]
+"""Names of the losses in `ssnerf_method/model/losses.py`."""
+
 SEMANTIC_IGNORE = 255
 """Class id of an unlabelled pixel on disk; its rays carry no semantic loss."""
 
@@ -235,7 +238,7 @@ class PropertySpec:
     """Per-frame key of its label file in transforms.json (None: nerfstudio loads it, as for RGB)."""
     branch: Branch
     """Decoder branch in the paper's final model."""
-    loss: Literal["mse", "l1", "cross_entropy"]
+    loss: LossName
     """Loss name, implemented in `ssnerf_method/model/losses.py`."""
     weight: float
     """Loss weight lambda (paper Sec. 4.1)."""
@@ -281,9 +284,10 @@ def resolve_properties(
     branches: Optional[Dict[str, Branch]] = None,
     weights: Optional[Dict[str, float]] = None,
     normals_mode: Literal["world", "pose"] = "world",
+    losses: Optional[Dict[str, LossName]] = None,
 ) -> List[PropertySpec]:
     """The specs a model trains: RGB first, then `names` in registry order, with per-run overrides applied."""
-    unknown = [name for name in [*names, *(branches or {}), *(weights or {})] if name not in REGISTRY]
+    unknown = [name for name in [*names, *(branches or {}), *(weights or {}), *(losses or {})] if name not in REGISTRY]
     if unknown:
         raise ValueError(f"Unknown properties {unknown}; choose from {list(REGISTRY)}.")
     chosen = ["rgb", *(name for name in OPTIONAL_PROPERTIES if name in names)]
@@ -296,6 +300,7 @@ def resolve_properties(
             spec,
             branch=(branches or {}).get(name, spec.branch),
             weight=(weights or {}).get(name, spec.weight),
+            loss=(losses or {}).get(name, spec.loss),
         )
         specs.append(spec)
     return specs

@@ -253,12 +253,26 @@ def test_resolve_properties_order_and_overrides() -> None:
     assert [spec.name for spec in resolve_properties([])] == ["rgb"]
 
 
+def test_loss_override_replaces_only_the_named_property() -> None:
+    specs = {spec.name: spec for spec in resolve_properties(["edges", "keypoints"], losses={"edges": "mse"})}
+    assert specs["edges"].loss == "mse" and specs["keypoints"].loss == "l1"
+    assert REGISTRY["edges"].loss == "l1"
+
+
+def test_lite_trains_edges_with_mse_and_the_paper_config_keeps_l1() -> None:
+    from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
+
+    assert ssnerf_lite_config.pipeline.model.losses == {"edges": "mse"}
+    assert ssnerf_config.pipeline.model.losses == {}
+
+
 @pytest.mark.parametrize(
     "kwargs",
     [
         {"names": ["semantics", "depth"]},
         {"names": ["semantics"], "branches": {"semantic": "v"}},
         {"names": ["semantics"], "weights": {"normal": 1.0}},
+        {"names": ["edges"], "losses": {"edge": "mse"}},
     ],
 )
 def test_unknown_property_names_raise(kwargs) -> None:

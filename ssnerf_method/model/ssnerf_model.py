@@ -28,7 +28,14 @@ from ssnerf_method.evaluation.metrics import METRICS
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
 from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField, add_pose_metadata
 from ssnerf_method.model.losses import LOSSES
-from ssnerf_method.properties import OPTIONAL_PROPERTIES, Branch, PropertySpec, RenderContext, resolve_properties
+from ssnerf_method.properties import (
+    OPTIONAL_PROPERTIES,
+    Branch,
+    LossName,
+    PropertySpec,
+    RenderContext,
+    resolve_properties,
+)
 from ssnerf_method.rendering.palette import semantic_palette
 from ssnerf_method.rendering.sampling import (
     HierarchicalSampling,
@@ -50,6 +57,8 @@ class SSNeRFModelConfig(ModelConfig):
     """Per-property decoder branch overrides, e.g. {semantics: v} (paper Table 3); unset = the paper's choice."""
     loss_weights: Dict[str, float] = field(default_factory=dict)
     """Per-property loss weight overrides; unset = the paper's lambda."""
+    losses: Dict[str, LossName] = field(default_factory=dict)
+    """Per-property loss overrides, e.g. {edges: mse}; unset = the paper's loss."""
     normals_mode: Literal["world", "pose"] = "world"
     """"world": predict world-frame normals, render, normalise, rotate into the camera; "pose": the paper's
     camera-pose-conditioned F_dec^nv predicting the camera-frame encoding directly."""
@@ -124,6 +133,7 @@ class SSNeRFModel(Model):
             branches=self.config.branches,
             weights=self.config.loss_weights,
             normals_mode=self.config.normals_mode,
+            losses=self.config.losses,
         )
         self.register_buffer("palette", semantic_palette(self.num_classes, metadata.get("semantic_colors")))
 
