@@ -257,6 +257,10 @@ class PropertySpec:
         """Batch key of the label: nerfstudio's "image" for RGB, else the property name."""
         return "image" if self.file_key is None else self.name
 
+    def label(self, batch: Dict[str, Tensor], num_classes: int) -> Tensor:
+        """This property's label from a batch, in its label channels (drops an RGBA image's alpha)."""
+        return batch[self.label_key][..., : self.kind.label_channels(num_classes)]
+
     @property
     def metric_prefix(self) -> str:
         """Prefix of metric names: none for RGB (`psnr`), else the property name (`semantics_miou`)."""

@@ -233,7 +233,7 @@ class SSNeRFModel(Model):
         """The paper's weighted sum: every property on every supervised level, each logged as `<name>_loss`."""
         losses: Dict[str, Tensor] = {}
         for spec in self.specs:
-            label = batch[spec.label_key].to(self.device)[..., : spec.kind.label_channels(self.num_classes)]
+            label = spec.label(batch, self.num_classes).to(self.device)
             valid = spec.kind.valid(label)
             for prefix in self.level_prefixes:
                 prediction = outputs[prefix + spec.prediction_key]
@@ -258,7 +258,7 @@ class SSNeRFModel(Model):
         metrics: Dict[str, float] = {}
         images: Dict[str, Tensor] = {}
         for spec in self.specs:
-            label = batch[spec.label_key].to(self.device)[..., : spec.kind.label_channels(self.num_classes)]
+            label = spec.label(batch, self.num_classes).to(self.device)
             valid = spec.kind.valid(label)
             prediction = outputs[spec.prediction_key]
             for name, value in METRICS[spec.metric](prediction, label, valid, self.num_classes).items():

@@ -87,6 +87,16 @@ def _on_front(n: np.ndarray, front: Tuple[int, int]) -> np.ndarray:
     return n[:, axis] * sign > 0.5
 
 
+def _front_face(
+    q: np.ndarray, n: np.ndarray, extent: np.ndarray, front: Tuple[int, int]
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Mask of the points on the `front` face, their in-plane coordinates (u, v) and the face's size (su, sv)."""
+    mask = _on_front(n, front)
+    u, v = _face_uv(q[mask], n[mask])
+    su, sv = _face_size(n[mask], extent)
+    return mask, u, v, su, sv
+
+
 def _hash(a: np.ndarray, b: Optional[np.ndarray] = None) -> np.ndarray:
     """Deterministic pseudo-random value in [0, 1) per integer cell (for per-plank / per-tile variation)."""
     a = a.astype(np.int64)
@@ -253,9 +263,7 @@ class Cabinet:
 
     def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
         albedo = WoodGrain(self.color, axis=1)(q, n, extent)
-        front = _on_front(n, self.front)
-        u, v = _face_uv(q[front], n[front])
-        su, sv = _face_size(n[front], extent)
+        front, u, v, su, sv = _front_face(q, n, extent, self.front)
         pu, pv = su / self.cols, sv / self.rows
         iu, iv = np.mod(u, pu), np.mod(v, pv)
         face = albedo[front]
@@ -305,9 +313,7 @@ class Mondrian:
 
     def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
         albedo = _fill(len(q), self.frame)
-        front = _on_front(n, self.front)
-        u, v = _face_uv(q[front], n[front])
-        su, sv = _face_size(n[front], extent)
+        front, u, v, su, sv = _front_face(q, n, extent, self.front)
         s, t = u / su, v / sv
         col = np.searchsorted(np.asarray(self.splits_u), s)
         row = np.searchsorted(np.asarray(self.splits_v), t)
@@ -334,9 +340,7 @@ class Landscape:
 
     def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
         albedo = _fill(len(q), self.frame)
-        front = _on_front(n, self.front)
-        u, v = _face_uv(q[front], n[front])
-        su, sv = _face_size(n[front], extent)
+        front, u, v, su, sv = _front_face(q, n, extent, self.front)
         s, t = u / su, v / sv
         face = _fill(len(s), self.sky) * (0.8 + 0.25 * t)[:, None]
         face[(s - 0.72) ** 2 * (su / sv) ** 2 + (t - 0.72) ** 2 < 0.13**2] = self.sun
@@ -359,9 +363,7 @@ class Television:
 
     def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
         albedo = _fill(len(q), self.body)
-        front = _on_front(n, self.front)
-        u, v = _face_uv(q[front], n[front])
-        su, sv = _face_size(n[front], extent)
+        front, u, v, su, sv = _front_face(q, n, extent, self.front)
         s, t = u / su, v / sv
         face = _fill(len(s), self.screen)
         glare = 0.6 * s + 0.4 * t
@@ -383,9 +385,7 @@ class WindowView:
 
     def __call__(self, q: np.ndarray, n: np.ndarray, extent: np.ndarray) -> np.ndarray:
         albedo = _fill(len(q), self.frame)
-        front = _on_front(n, self.front)
-        u, v = _face_uv(q[front], n[front])
-        su, sv = _face_size(n[front], extent)
+        front, u, v, su, sv = _front_face(q, n, extent, self.front)
         s, t = u / su, v / sv
         top, horizon = np.array([0.55, 0.72, 0.98]), np.array([0.88, 0.93, 1.0])
         face = horizon + (top - horizon) * t[:, None]

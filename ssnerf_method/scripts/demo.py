@@ -82,8 +82,7 @@ def nearest_view_baseline(pipeline: Pipeline) -> Dict[str, float]:
         nearest = int(torch.argmin(distance - 1e-3 * alignment))
         target, source = test[test_index], train[nearest]
         for spec in model.specs:
-            channels = spec.kind.label_channels(model.num_classes)
-            label, copied = target[spec.label_key][..., :channels], source[spec.label_key][..., :channels]
+            label, copied = spec.label(target, model.num_classes), spec.label(source, model.num_classes)
             copied = spec.kind.label_as_prediction(copied, model.num_classes)
             for name, value in METRICS[spec.metric](copied, label, spec.kind.valid(label), model.num_classes).items():
                 scores.setdefault(spec.metric_prefix + name, []).append(value)
@@ -106,7 +105,7 @@ def evaluate(pipeline: Pipeline, renders_dir: Optional[Path]) -> Dict[str, float
         view_dir = renders_dir / f"test_view_{view:02d}"
         view_dir.mkdir(parents=True, exist_ok=True)
         for spec in model.specs:
-            label = batch[spec.label_key][..., : spec.kind.label_channels(model.num_classes)].to(model.device)
+            label = spec.label(batch, model.num_classes).to(model.device)
             truth = spec.kind.display(spec.kind.label_as_prediction(label, model.num_classes), model.palette)
             pair = np.concatenate([display_image(spec, truth), display_image(spec, outputs[spec.name])], axis=1)
             Image.fromarray(pair).save(view_dir / f"{spec.name}.png")
