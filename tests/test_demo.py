@@ -1,0 +1,39 @@
+"""`ssnerf-demo` end to end on a tiny scene: trains, reloads the checkpoint, scores, writes metrics and renders."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from ssnerf_method.scripts.demo import DemoConfig, run
+
+METRICS = {"psnr", "ssim", "semantics_miou", "semantics_acc", "normals_l1", "shading_l1", "keypoints_l1", "edges_l1"}
+PROPERTIES = ("rgb", "semantics", "normals", "shading", "keypoints", "edges")
+
+
+@pytest.fixture(autouse=True)
+def single_thread():
+    previous = torch.get_num_threads()
+    torch.set_num_threads(1)
+    yield
+    torch.set_num_threads(previous)
+
+
+def test_demo_writes_metrics_and_renders(tmp_path: Path) -> None:
+    out = tmp_path / "demo"
+    run(DemoConfig(output_dir=out, method="ssnerf-lite", max_num_iterations=10, width=48, height=36, num_frames=10))
+    summary = json.loads((out / "metrics.json").read_text())
+    columns = summary["results"]
+    assert set(columns) == {"ssnerf-lite (step 9)", "nearest training view"}
+    for scores in columns.values():
+        assert set(scores) == METRICS
+        assert all(value == value for value in scores.values())  # no NaN
+    views = sorted((out / "renders").iterdir())
+    assert len(views) == 2  # frames 2 and 7 of 10 are the test views
+    for view in views:
+        assert {path.stem for path in view.glob("*.png")} == set(PROPERTIES)
+    with pytest.raises(SystemExit, match="--overwrite"):
+        run(DemoConfig(output_dir=out, method="ssnerf-lite", max_num_iterations=10, width=48, height=36, num_frames=10))
