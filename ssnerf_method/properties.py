@@ -58,22 +58,35 @@ def _read_image(path: Path) -> np.ndarray:
         raise LabelFileError(f"{path}: cannot be read as an image ({err}). Re-export it as a PNG.") from err
 
 
-def _read_uint8(path: Path, width: int, height: int, channels: int, content: str) -> np.ndarray:
-    """Read an 8-bit label PNG and check its size against the frame's camera and its channel count."""
+def _read_uint8(
+    path: Path, width: int, height: int, channels: int, content: str, alpha: bool = False
+) -> Tuple[np.ndarray, np.ndarray]:
+    """Read an 8-bit label PNG, check its size against the frame's camera and its channel count.
+
+    Returns the (H, W) or (H, W, channels) values and an (H, W) mask of labelled pixels. With `alpha`, the PNG may
+    carry one extra alpha channel (grey+alpha, RGBA) whose 0 marks unlabelled pixels (e.g. normals where depth was
+    invalid); without one, every pixel is labelled.
+    """
     array = _read_image(path)
     if array.shape[:2] != (height, width):
         raise LabelFileError(
             f"{path}: image is {array.shape[1]}x{array.shape[0]} but its frame's camera is {width}x{height}. "
             "Resize the label to the RGB image's size."
         )
-    layout_ok = array.ndim == 2 if channels == 1 else array.ndim == 3 and array.shape[2] == channels
-    if not layout_ok or array.dtype != np.uint8:
+    found = 1 if array.ndim == 2 else array.shape[2]
+    allowed = (channels, channels + 1) if alpha else (channels,)
+    if found not in allowed or array.dtype != np.uint8:
         mode = "single-channel (mode 'L')" if channels == 1 else "RGB"
+        if alpha:
+            mode += " or " + ("grey+alpha (mode 'LA')" if channels == 1 else "RGBA")
         raise LabelFileError(
             f"{path}: {content} must be an 8-bit {mode} PNG, got shape {array.shape} {array.dtype}. "
             f"Save it as an 8-bit {mode} PNG."
         )
-    return array
+    if found == channels:
+        return array, np.ones((height, width), dtype=bool)
+    values = array[..., 0] if channels == 1 else array[..., :channels]
+    return values, array[..., channels] > 0
 
 
 class PropertyKind(ABC):
@@ -154,7 +167,7 @@ class ClassKind(PropertyKind):
         return label[..., 0] != SEMANTIC_IGNORE
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
-        array = _read_uint8(path, width, height, 1, "semantics (class ids)")
+        array, _ = _read_uint8(path, width, height, 1, "semantics (class ids)")
         bad = np.unique(array[(array >= num_classes) & (array != SEMANTIC_IGNORE)])
         if bad.size:
             raise LabelFileError(
@@ -198,8 +211,10 @@ class NormalKind(PropertyKind):
         return (F.normalize(normals, dim=-1) + 1.0) / 2.0
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
-        array = _read_uint8(path, width, height, 3, "normals ((n+1)/2 per channel)")
-        return torch.from_numpy(array.astype(np.float32) / 255.0)
+        array, labelled = _read_uint8(path, width, height, 3, "normals ((n+1)/2 per channel)", alpha=True)
+        values = array.astype(np.float32) / 255.0
+        values[~labelled] = np.nan
+        return torch.from_numpy(values)
 
     def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
         return prediction.clamp(0.0, 1.0)
@@ -218,8 +233,10 @@ class ScalarKind(PropertyKind):
         return torch.sigmoid(raw) if self.activation_name == "sigmoid" else torch.relu(raw)
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
-        array = _read_uint8(path, width, height, 1, "this map (value/255 in [0, 1])")
-        return torch.from_numpy(array.astype(np.float32) / 255.0)[..., None]
+        array, labelled = _read_uint8(path, width, height, 1, "this map (value/255 in [0, 1])", alpha=True)
+        values = array.astype(np.float32) / 255.0
+        values[~labelled] = np.nan
+        return torch.from_numpy(values)[..., None]
 
     def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
         return prediction.clamp(0.0, 1.0)

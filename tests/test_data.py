@@ -151,9 +151,9 @@ def test_property_absent_from_every_frame_is_not_available(tiny_dataset: Path, e
 # ---------------------------------------------------------------------------------------------------- bad inputs
 
 
-def _load_frame(root: Path, frame_name: str) -> None:
+def _load_frame(root: Path, frame_name: str) -> Dict:
     dataset = load(root)
-    dataset[index_of(dataset, frame_name)]
+    return dataset[index_of(dataset, frame_name)]
 
 
 def test_missing_label_file(tiny_dataset: Path) -> None:
@@ -199,13 +199,26 @@ def test_semantic_id_outside_class_list(tiny_dataset: Path) -> None:
     assert str(len(CLASSES) + 3) in str(info.value)
 
 
-@pytest.mark.parametrize("mode", ["L", "RGBA"])
+@pytest.mark.parametrize("mode", ["L", "LA"])
 def test_normals_not_three_channel(tiny_dataset: Path, mode: str) -> None:
     path = tiny_dataset / "normals" / "frame_001.png"
-    channels = {"L": (), "RGBA": (4,)}[mode]
+    channels = {"L": (), "LA": (2,)}[mode]
     Image.fromarray(np.full((HEIGHT, WIDTH, *channels), 128, dtype=np.uint8), mode=mode).save(path)
     with pytest.raises(LabelFileError, match=re.escape(str(path))):
         _load_frame(tiny_dataset, "frame_001.png")
+
+
+@pytest.mark.parametrize("name, mode", [("normals", "RGBA"), ("shading", "LA")])
+def test_alpha_zero_marks_unlabelled_pixels(tiny_dataset: Path, name: str, mode: str) -> None:
+    """Labels derived from depth (normals, shading) carry alpha 0 where depth was invalid: those pixels get no loss."""
+    path = tiny_dataset / name / "frame_001.png"
+    array = np.full((HEIGHT, WIDTH, len(mode)), 200, dtype=np.uint8)
+    array[:4, :5, -1] = 0
+    Image.fromarray(array, mode=mode).save(path)
+    label = _load_frame(tiny_dataset, "frame_001.png")[name]
+    valid = REGISTRY[name].kind.valid(label)
+    assert not valid[:4, :5].any() and valid.sum() == HEIGHT * WIDTH - 20
+    assert torch.allclose(label[valid], torch.tensor(200 / 255.0))
 
 
 def test_scalar_label_not_single_channel(tiny_dataset: Path) -> None:

@@ -181,7 +181,7 @@ def test_keypoint_heatmap_peaks_at_detected_keypoints(scene):
     total = 0
     for frame in meta["frames"]:
         heatmap = _read(root, frame["keypoints_file_path"]) / 255.0
-        positions, responses = detect_keypoints(_read(root, frame["file_path"]))
+        positions, responses = detect_keypoints(_read(root, frame["file_path"]), "sift")
         if len(responses) == 0:
             assert heatmap.max() == 0
             continue

@@ -1,22 +1,33 @@
-"""Keypoint label: SIFT detections splatted as Gaussian blobs into a heatmap in [0, 1]."""
+"""Keypoint label: detector responses (SURF by default, as in the paper) splatted as Gaussian blobs into [0, 1]."""
 
 from __future__ import annotations
 
-from typing import Tuple
+from typing import Literal, Tuple
 
 import cv2
 import numpy as np
 
 from ssnerf_method.labels.edges import to_gray_uint8
+from ssnerf_method.labels.surf import detect_surf
+
+Detector = Literal["surf", "sift", "orb"]
+"""`surf`: our Fast-Hessian detector (`labels/surf.py`); `sift`, `orb`: OpenCV's, with OpenCV's defaults."""
 
 
-def detect_keypoints(image: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-    """SIFT keypoints (OpenCV defaults) of an RGB or grey image.
+def detect_keypoints(image: np.ndarray, detector: Detector = "surf") -> Tuple[np.ndarray, np.ndarray]:
+    """Keypoints of an RGB or grey image.
 
     Returns their (N, 2) positions (x, y) in OpenCV pixel coordinates (pixel (row i, column j) is centred at
     (j, i)) and their (N,) detector responses.
     """
-    keypoints = cv2.SIFT_create().detect(to_gray_uint8(image), None)
+    gray = to_gray_uint8(image)
+    if detector == "surf":
+        # detect_surf reports positions with pixel centres at +0.5; shift them to OpenCV's convention.
+        found = detect_surf(gray)
+        return found.positions - 0.5, found.responses
+    if detector not in ("sift", "orb"):
+        raise ValueError(f"unknown keypoint detector {detector!r}; use surf, sift or orb")
+    keypoints = (cv2.SIFT_create() if detector == "sift" else cv2.ORB_create()).detect(gray, None)
     positions = np.array([kp.pt for kp in keypoints], dtype=np.float64).reshape(-1, 2)
     responses = np.array([kp.response for kp in keypoints], dtype=np.float64)
     return positions, responses
@@ -42,14 +53,14 @@ def splat_keypoints(
     return heatmap
 
 
-def keypoint_heatmap(image: np.ndarray, sigma: float = 1.5) -> np.ndarray:
+def keypoint_heatmap(image: np.ndarray, sigma: float = 1.5, detector: Detector = "surf") -> np.ndarray:
     """(H, W) float32 keypoint heatmap in [0, 1] of an RGB or grey image.
 
-    Each SIFT keypoint becomes a Gaussian blob of standard deviation `sigma` pixels whose peak is its response
+    Each keypoint of `detector` becomes a Gaussian blob of standard deviation `sigma` pixels whose peak is its response
     divided by the image's largest response (so the strongest keypoint peaks at 1); overlapping blobs combine by
     max. An image without keypoints gives all zeros.
     """
-    positions, responses = detect_keypoints(image)
+    positions, responses = detect_keypoints(image, detector)
     height, width = image.shape[:2]
     if len(responses) == 0 or responses.max() <= 0:
         return np.zeros((height, width), dtype=np.float32)

@@ -83,6 +83,18 @@ def octave_sizes(octave: int, layers: int = 4) -> List[int]:
     return [first + step * index for index in range(layers)]
 
 
+def local_max_3x3x3(neighbourhood: np.ndarray) -> np.ndarray:
+    """(H, W) maximum over each pixel's 3x3 window in all three (3, H, W) layers; outside the image counts as 0.
+
+    Separable (layers, then rows, then columns), which is an order of magnitude faster than a windowed view.
+    """
+    across = neighbourhood.max(axis=0)
+    rows = np.pad(across, ((1, 1), (0, 0)))
+    across = np.maximum(np.maximum(rows[:-2], rows[1:-1]), rows[2:])
+    cols = np.pad(across, ((0, 0), (1, 1)))
+    return np.maximum(np.maximum(cols[:, :-2], cols[:, 1:-1]), cols[:, 2:])
+
+
 def detect_surf(
     image: np.ndarray, threshold: float = 1e-4, num_octaves: int = 3, max_keypoints: int = 1000
 ) -> SurfKeypoints:
@@ -108,11 +120,7 @@ def detect_surf(
         border = octave_sizes(octave)[-1] // 2
         for layer in range(1, stack.shape[0] - 1):
             centre = stack[layer]
-            neighbourhood = stack[layer - 1 : layer + 2]
-            padded = np.pad(neighbourhood, ((0, 0), (1, 1), (1, 1)))
-            windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3), axis=(1, 2))
-            local_max = windows.max(axis=(0, 3, 4))
-            keep = (centre >= local_max) & (centre > threshold)
+            keep = (centre >= local_max_3x3x3(stack[layer - 1 : layer + 2])) & (centre > threshold)
             keep[:border] = keep[-border:] = False
             keep[:, :border] = keep[:, -border:] = False
             ys, xs = np.nonzero(keep)

@@ -171,7 +171,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
             "semantics": view.semantics,
             "normals": _to_uint8((view.normals + 1.0) / 2.0),
             "shading": _to_uint8(lambertian_shading(view.normals, k["fl_x"], k["fl_y"], k["cx"], k["cy"])),
-            "keypoints": _to_uint8(keypoint_heatmap(rgb, sigma=KEYPOINT_SIGMA)),
+            "keypoints": _to_uint8(keypoint_heatmap(rgb, sigma=KEYPOINT_SIGMA, detector="sift")),
             "edges": _to_uint8(canny_edges(rgb, *EDGE_THRESHOLDS)),
         }
         name = f"frame_{i:05d}.png"

@@ -1,0 +1,134 @@
+"""Reading user images and writing datasets without ever leaving a half-written file or folder behind.
+
+The dataset tools (`ssnerf-label`, `ssnerf-import`) read images through `read_image`, which turns every failure into
+one `DatasetInputError` naming the file and the fix, and write through a `Staging` area: files go to a temporary
+folder next to their destination and are moved into place only once everything has been produced, and JSON is
+written to a temporary file and renamed. An error midway leaves the user's folder exactly as it was.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+from types import TracebackType
+from typing import Any, List, Optional, Tuple, Type
+
+import cv2
+import numpy as np
+
+from ssnerf_method.properties import LabelFileError
+
+
+class DatasetInputError(LabelFileError):
+    """An input dataset file or folder that cannot be used; the message names it and says what to do."""
+
+
+def read_image(path: Path, what: str = "image") -> np.ndarray:
+    """An image file as stored: (H, W) or (H, W, C) in RGB(A) channel order, uint8 or uint16.
+
+    Raises `DatasetInputError` naming `path` when it is missing or cannot be decoded.
+    """
+    if not path.is_file():
+        raise DatasetInputError(f"{path}: {what} listed in the dataset does not exist. Add the file or remove the frame.")
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    if image is None or image.size == 0:
+        raise DatasetInputError(f"{path}: {what} cannot be decoded (corrupt or not an image). Re-export the file.")
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2RGBA)
+    return image
+
+
+def image_size(path: Path, what: str = "image") -> Tuple[int, int]:
+    """(width, height) of an image file, read from its header where possible."""
+    from PIL import Image, UnidentifiedImageError
+
+    if not path.is_file():
+        raise DatasetInputError(f"{path}: {what} listed in the dataset does not exist. Add the file or remove the frame.")
+    try:
+        with Image.open(path) as image:
+            return image.size
+    except (OSError, UnidentifiedImageError) as err:
+        raise DatasetInputError(f"{path}: {what} cannot be decoded ({err}). Re-export the file.") from err
+
+
+def encode_png(image: np.ndarray) -> bytes:
+    """PNG bytes of a uint8/uint16 (H, W) or RGB (H, W, 3) array."""
+    if image.dtype not in (np.uint8, np.uint16):
+        raise TypeError(f"PNG labels are uint8 or uint16, got {image.dtype}")
+    if image.ndim == 3:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    ok, buffer = cv2.imencode(".png", image)
+    if not ok:
+        raise OSError("OpenCV could not encode the PNG")
+    return buffer.tobytes()
+
+
+def write_json_atomic(path: Path, data: Any) -> None:
+    """Write `data` as indented JSON to `path` through a temporary file in the same folder and a rename."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(handle, "w") as stream:
+            json.dump(data, stream, indent=2)
+            stream.write("\n")
+        os.replace(temporary, path)
+    except BaseException:
+        Path(temporary).unlink(missing_ok=True)
+        raise
+
+
+def backup_once(path: Path) -> Path:
+    """Copy `path` to `<path>.orig` unless that backup already exists (it then holds the true original)."""
+    backup = path.with_name(path.name + ".orig")
+    if not backup.exists():
+        shutil.copy2(path, backup)
+    return backup
+
+
+class Staging:
+    """Files written under `root` only when the whole job succeeded.
+
+    `stage(relative)` gives the path to write a file to (inside a hidden temporary folder under `root`); `commit()`
+    moves every staged file to `root / relative`, replacing what was there. Leaving the `with` block by an exception,
+    or without `commit()`, deletes the temporary folder and touches nothing else.
+    """
+
+    def __init__(self, root: Path) -> None:
+        self.root = root
+        self._folder: Optional[Path] = None
+        self._staged: List[Path] = []
+
+    def __enter__(self) -> "Staging":
+        self.root.mkdir(parents=True, exist_ok=True)
+        self._folder = Path(tempfile.mkdtemp(prefix=".ssnerf-staging-", dir=self.root))
+        return self
+
+    def stage(self, relative: Path) -> Path:
+        assert self._folder is not None, "use Staging as a context manager"
+        target = self._folder / relative
+        target.parent.mkdir(parents=True, exist_ok=True)
+        self._staged.append(Path(relative))
+        return target
+
+    def write_png(self, relative: Path, image: np.ndarray) -> None:
+        self.stage(relative).write_bytes(encode_png(image))
+
+    def commit(self) -> None:
+        assert self._folder is not None, "use Staging as a context manager"
+        for relative in self._staged:
+            destination = self.root / relative
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(self._folder / relative, destination)
+        self._staged = []
+
+    def __exit__(
+        self, kind: Optional[Type[BaseException]], error: Optional[BaseException], trace: Optional[TracebackType]
+    ) -> None:
+        if self._folder is not None:
+            shutil.rmtree(self._folder, ignore_errors=True)
+            self._folder = None
