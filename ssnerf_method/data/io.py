@@ -8,6 +8,7 @@ written to a temporary file and renamed. An error midway leaves the user's folde
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -57,11 +58,17 @@ def image_size(path: Path, what: str = "image") -> Tuple[int, int]:
 
 
 def encode_png(image: np.ndarray) -> bytes:
-    """PNG bytes of a uint8/uint16 (H, W) or RGB (H, W, 3) array."""
+    """PNG bytes of a uint8/uint16 (H, W) grey, (H, W, 2) grey+alpha, RGB or RGBA array."""
     if image.dtype not in (np.uint8, np.uint16):
         raise TypeError(f"PNG labels are uint8 or uint16, got {image.dtype}")
+    if image.ndim == 3 and image.shape[2] == 2:  # OpenCV cannot write grey+alpha
+        from PIL import Image
+
+        buffer = io.BytesIO()
+        Image.fromarray(image, mode="LA").save(buffer, format="PNG")
+        return buffer.getvalue()
     if image.ndim == 3:
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
     ok, buffer = cv2.imencode(".png", image)
     if not ok:
         raise OSError("OpenCV could not encode the PNG")
@@ -132,3 +139,68 @@ class Staging:
         if self._folder is not None:
             shutil.rmtree(self._folder, ignore_errors=True)
             self._folder = None
+
+
+class StagedOutputFolder:
+    """A new folder next to `destination`, to fill inside a `with` block; it becomes `destination` only on success.
+
+    `destination` must be missing or an empty folder unless `overwrite`. Leaving the block normally renames the
+    temporary folder to `destination` (an overwritten folder is moved aside first and deleted only after the rename);
+    leaving it by an exception removes the temporary folder and any missing parent folders this created, so
+    `destination` is exactly as it was.
+    """
+
+    def __init__(self, destination: Path, overwrite: bool = False) -> None:
+        self.destination = destination
+        self.overwrite = overwrite
+        self._folder: Optional[Path] = None
+        self._created: Optional[Path] = None
+
+    def __enter__(self) -> Path:
+        destination = self.destination
+        if destination.exists() and not destination.is_dir():
+            raise DatasetInputError(f"{destination}: output exists and is not a folder. Pick another output folder.")
+        if destination.is_dir() and any(destination.iterdir()) and not self.overwrite:
+            raise DatasetInputError(
+                f"{destination}: output folder exists and is not empty. Pass --overwrite to replace it, or pick "
+                "another folder."
+            )
+        self._created = next((parent for parent in reversed(destination.parents) if not parent.exists()), None)
+        destination.parent.mkdir(parents=True, exist_ok=True)
+        self._folder = destination.parent / f".{destination.name}.partial-{os.getpid()}-{id(self):x}"
+        self._folder.mkdir()
+        return self._folder
+
+    def __exit__(
+        self, kind: Optional[Type[BaseException]], error: Optional[BaseException], trace: Optional[TracebackType]
+    ) -> None:
+        assert self._folder is not None, "use StagedOutputFolder as a context manager"
+        folder, self._folder = self._folder, None
+        if kind is None:
+            try:
+                self._replace_destination(folder)
+                return
+            except BaseException:
+                self._discard(folder)
+                raise
+        self._discard(folder)
+
+    def _replace_destination(self, folder: Path) -> None:
+        """Rename `folder` to the destination, moving an existing destination aside until that succeeded."""
+        old = self.destination.parent / f".{self.destination.name}.old-{os.getpid()}-{id(self):x}"
+        moved_aside = self.destination.exists()
+        if moved_aside:
+            os.rename(self.destination, old)
+        try:
+            os.rename(folder, self.destination)
+        except BaseException:
+            if moved_aside:
+                os.rename(old, self.destination)
+            raise
+        if moved_aside:
+            shutil.rmtree(old, ignore_errors=True)
+
+    def _discard(self, folder: Path) -> None:
+        shutil.rmtree(folder, ignore_errors=True)
+        if self._created is not None:
+            shutil.rmtree(self._created, ignore_errors=True)

@@ -2,8 +2,8 @@
 
 from ssnerf_method.labels.edges import canny_edges
 from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_heatmap, splat_keypoints
-from ssnerf_method.labels.normals import backproject_depth, normals_from_depth
-from ssnerf_method.labels.shading import camera_ray_directions, lambertian_shading
+from ssnerf_method.labels.normals import backproject_depth, normals_from_depth, normals_from_points
+from ssnerf_method.labels.shading import camera_ray_directions, lambertian_shading, shading_from_rays
 
 __all__ = [
     "backproject_depth",
@@ -13,5 +13,7 @@ __all__ = [
     "keypoint_heatmap",
     "lambertian_shading",
     "normals_from_depth",
+    "normals_from_points",
+    "shading_from_rays",
     "splat_keypoints",
 ]

@@ -31,19 +31,18 @@ def _pixel_derivative(points: np.ndarray, usable: np.ndarray, axis: int) -> np.n
     return np.where(np.isnan(central), np.where(np.isnan(forward_at), backward_at, forward_at), central)
 
 
-def normals_from_depth(
-    depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, min_angle_deg: float = 5.0
-) -> np.ndarray:
-    """(H, W, 3) camera-frame unit normals (OpenGL axes: x right, y up, z towards the viewer) of a z-depth map.
+def normals_from_points(points: np.ndarray, valid: np.ndarray, min_angle_deg: float = 5.0) -> np.ndarray:
+    """(H, W, 3) unit normals, facing the camera, of an (H, W, 3) grid of camera-frame points (camera at the origin).
 
-    The depth is back-projected to 3D points; the normal is the cross product of their derivatives along image rows
-    and columns, normalised and oriented towards the camera. A difference between neighbouring pixels counts as a
-    depth discontinuity, and is not used, when the 3D segment joining them lies within `min_angle_deg` of the
-    viewing ray (the surface would be seen exactly edge-on); genuinely tilted surfaces such as a far floor are kept.
-    Pixels with depth <= 0 (or non-finite), or with no usable difference along rows or columns, are NaN.
+    This is the paper's SN = (-dz/dx, -dz/dy, 1), normalised, for the surface z(x, y) through the back-projected
+    points, computed for any camera model: the normal is the cross product of the points' derivatives along image
+    rows and columns (which is parallel to (-dz/dx, -dz/dy, 1) by the chain rule), oriented towards the camera.
+    A difference between neighbouring pixels counts as a depth discontinuity, and is not used, when the 3D segment
+    joining them lies within `min_angle_deg` of the viewing ray (the surface would be seen exactly edge-on);
+    genuinely tilted surfaces such as a far floor are kept. Pixels not `valid`, or with no usable difference along
+    rows or columns, are NaN.
     """
-    valid = np.isfinite(depth) & (depth > 0)
-    points = backproject_depth(np.where(valid, depth, 0.0), fx, fy, cx, cy)
+    points = np.where(valid[..., None], points, 0.0)
     view = points / np.maximum(np.linalg.norm(points, axis=-1, keepdims=True), 1e-12)
     cos_limit = np.cos(np.deg2rad(min_angle_deg))
 
@@ -64,3 +63,15 @@ def normals_from_depth(
         normals = normals / norm
     normals[~valid | ~np.isfinite(norm[..., 0]) | (norm[..., 0] <= 0)] = np.nan
     return normals
+
+
+def normals_from_depth(
+    depth: np.ndarray, fx: float, fy: float, cx: float, cy: float, min_angle_deg: float = 5.0
+) -> np.ndarray:
+    """(H, W, 3) camera-frame unit normals (OpenGL axes: x right, y up, z towards the viewer) of a pinhole z-depth map.
+
+    See `normals_from_points`; pixels with depth <= 0 (or non-finite) are NaN.
+    """
+    valid = np.isfinite(depth) & (depth > 0)
+    points = backproject_depth(np.where(valid, depth, 0.0), fx, fy, cx, cy)
+    return normals_from_points(points, valid, min_angle_deg)

@@ -20,14 +20,17 @@ def camera_ray_directions(
     return rays
 
 
-def lambertian_shading(normals: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
-    """(H, W) shading `clip(dot(n, -v), 0, 1)` of camera-frame unit normals `n` (H, W, 3, OpenGL axes).
+def shading_from_rays(normals: np.ndarray, unit_rays: np.ndarray) -> np.ndarray:
+    """(H, W) shading `clip(dot(n, -v), 0, 1)` of unit normals `n` seen along unit viewing rays `v` (both (H, W, 3)).
 
-    `v` is the unit viewing ray through each pixel centre: this is a Lambertian surface lit by a point light at the
-    camera centre (no falloff), so surfaces facing the camera are 1 and surfaces seen edge-on are 0. NaN normals
-    (unknown geometry) give NaN.
+    This is a Lambertian surface lit by a point light at the camera centre (no falloff): surfaces facing the camera
+    are 1 and surfaces seen edge-on are 0. NaN normals (unknown geometry) give NaN.
     """
+    return np.clip(-np.einsum("hwc,hwc->hw", normals, unit_rays), 0.0, 1.0)
+
+
+def lambertian_shading(normals: np.ndarray, fx: float, fy: float, cx: float, cy: float) -> np.ndarray:
+    """(H, W) Lambertian shading (`shading_from_rays`) of camera-frame unit normals (H, W, 3, OpenGL axes) seen by a
+    pinhole camera."""
     height, width = normals.shape[:2]
-    view = camera_ray_directions(height, width, fx, fy, cx, cy)
-    shading = -np.einsum("hwc,hwc->hw", normals, view)
-    return np.clip(shading, 0.0, 1.0)
+    return shading_from_rays(normals, camera_ray_directions(height, width, fx, fy, cx, cy))

@@ -1,0 +1,156 @@
+"""The label makers on images and depth maps whose answer is known: Canny and keypoint heatmaps of a drawn image,
+normals of a tilted plane and a sphere against the analytic normal (also through a distorted nerfstudio camera), and
+Lambertian shading of known normals."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from ssnerf_method.data.transforms import Transforms, camera_rays, frame_camera
+from ssnerf_method.labels import camera_ray_directions, canny_edges, keypoint_heatmap, lambertian_shading
+from ssnerf_method.labels import normals_from_depth, normals_from_points
+from ssnerf_method.labels.keypoints import detect_keypoints
+from ssnerf_method.labels.surf import local_max_3x3x3
+
+WIDTH, HEIGHT, FOCAL = 96, 72, 80.0
+CX, CY = WIDTH / 2, HEIGHT / 2
+
+
+def square_image() -> np.ndarray:
+    """Dark image with a bright 20x30 rectangle: rows 20..39, columns 30..59."""
+    image = np.full((HEIGHT, WIDTH, 3), 30, dtype=np.uint8)
+    image[20:40, 30:60] = 220
+    return image
+
+
+def test_canny_marks_exactly_the_rectangle_outline() -> None:
+    edges = canny_edges(square_image())
+    assert edges.dtype == np.float32 and set(np.unique(edges)) == {0.0, 1.0}
+    rows, cols = np.nonzero(edges)
+    # Every edge pixel lies within one pixel of the rectangle's border, and every side is found.
+    near_border = (np.minimum(np.abs(rows - 19.5), np.abs(rows - 39.5)) <= 1) | (
+        np.minimum(np.abs(cols - 29.5), np.abs(cols - 59.5)) <= 1
+    )
+    inside = (rows >= 18) & (rows <= 41) & (cols >= 28) & (cols <= 61)
+    assert (near_border & inside).all()
+    for side in (edges[19:21, 35:55], edges[38:41, 35:55], edges[25:35, 29:31], edges[25:35, 58:61]):
+        assert side.any(axis=0 if side.shape[0] <= 3 else 1).all()
+    assert canny_edges(square_image(), 1000, 2000).sum() == 0  # thresholds above every gradient: no edges
+
+
+@pytest.mark.parametrize("detector", ["surf", "sift"])
+def test_keypoint_heatmap_peaks_on_a_blob(detector: str) -> None:
+    rows, cols = np.mgrid[0:HEIGHT, 0:WIDTH] + 0.5
+    image = 40 + 180 * np.exp(-((cols - 40.0) ** 2 + (rows - 30.0) ** 2) / (2 * 4.0**2))
+    image = np.repeat(image.astype(np.uint8)[..., None], 3, axis=-1)
+    heatmap = keypoint_heatmap(image, sigma=2.0, detector=detector)
+    # The strongest keypoint peaks at 1 at its sub-pixel position, a little less at the nearest pixel centre.
+    assert heatmap.shape == (HEIGHT, WIDTH) and 0.85 < heatmap.max() <= 1.0
+    peak_row, peak_col = np.unravel_index(np.argmax(heatmap), heatmap.shape)
+    # OpenCV pixel (row 29, col 39) is centred on the blob at image coordinates (40, 30) minus half a pixel.
+    assert abs(peak_row - 29.5) <= 1.5 and abs(peak_col - 39.5) <= 1.5
+    assert heatmap[:, :15].max() == 0 and heatmap[:, 70:].max() == 0  # zero away from the only blob
+    positions, _ = detect_keypoints(image, detector)
+    assert np.linalg.norm(positions - [39.5, 29.5], axis=1).min() <= 1.5
+
+
+def test_orb_and_flat_images() -> None:
+    assert keypoint_heatmap(np.full((HEIGHT, WIDTH, 3), 90, dtype=np.uint8)).max() == 0
+    canvas = np.full((160, 200, 3), 30, dtype=np.uint8)  # ORB ignores a 31-pixel border
+    canvas[60:100, 70:130] = 220
+    heatmap = keypoint_heatmap(canvas, detector="orb")
+    rows, cols = np.nonzero(heatmap > 0.5)
+    assert len(rows) and ((rows > 50) & (rows < 110) & (cols > 60) & (cols < 140)).all()  # on the rectangle
+    with pytest.raises(ValueError, match="surf, sift or orb"):
+        detect_keypoints(square_image(), "harris")  # type: ignore[arg-type]
+
+
+def test_separable_local_max_equals_windowed_max() -> None:
+    stack = np.random.default_rng(1).random((3, 17, 23))
+    padded = np.pad(stack, ((0, 0), (1, 1), (1, 1)))
+    windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3), axis=(1, 2))
+    np.testing.assert_array_equal(local_max_3x3x3(stack), windows.max(axis=(0, 3, 4)))
+
+
+def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    return np.rad2deg(np.arccos(np.clip(np.einsum("...c,...c->...", a, b), -1.0, 1.0)))
+
+
+def tilted_plane(rays: np.ndarray):
+    """z-depth and analytic normal of the plane through (0, 0, -2) facing the camera, tilted ~20 deg."""
+    normal = np.array([0.3, -0.2, 1.0]) / np.linalg.norm([0.3, -0.2, 1.0])
+    distance = normal @ np.array([0.0, 0.0, -2.0])
+    t = distance / (rays @ normal)
+    return -t * rays[..., 2], normal
+
+
+def test_normals_of_a_tilted_plane_match_the_analytic_normal() -> None:
+    rays = camera_ray_directions(HEIGHT, WIDTH, FOCAL, FOCAL, CX, CY)
+    depth, normal = tilted_plane(rays)
+    normals = normals_from_depth(depth, FOCAL, FOCAL, CX, CY)
+    assert np.isfinite(normals).all()
+    assert _angle_deg(normals, normal).max() < 0.01
+    # The paper's formula, on the back-projected points: (-dz/dx, -dz/dy, 1) in camera axes where z is the distance
+    # in front of the camera (OpenCV: x right, y down, z forward), expressed back in OpenGL axes.
+    points = depth[..., None] * rays / -rays[..., 2:]
+    x, y, z = points[..., 0], -points[..., 1], -points[..., 2]  # OpenCV axes
+    # Chain rule: the pixel derivatives of z are J @ (dz/dx, dz/dy), J the pixel derivatives of (x, y).
+    jacobian = np.stack([np.stack([np.gradient(c, axis=a) for c in (x, y)], -1) for a in (1, 0)], -2)
+    dz_dx, dz_dy = np.moveaxis(np.linalg.solve(jacobian, np.stack([np.gradient(z, axis=a) for a in (1, 0)], -1)), -1, 0)
+    paper = np.stack([-dz_dx, -dz_dy, np.ones_like(z)], axis=-1)
+    paper /= np.linalg.norm(paper, axis=-1, keepdims=True)
+    # (-dz/dx, -dz/dy, 1) points away from the camera in OpenCV axes; flipped and mapped to OpenGL it is ours.
+    paper_gl = -paper * np.array([1.0, -1.0, -1.0])
+    assert _angle_deg(normals[2:-2, 2:-2], paper_gl[2:-2, 2:-2]).max() < 0.5
+
+
+def test_normals_of_a_sphere_away_from_its_silhouette() -> None:
+    rays = camera_ray_directions(HEIGHT, WIDTH, FOCAL, FOCAL, CX, CY)
+    centre, radius = np.array([0.1, -0.05, -3.0]), 0.9
+    b = rays @ centre
+    disc = b**2 - (centre @ centre - radius**2)
+    hit = disc > 0
+    t = np.where(hit, b - np.sqrt(np.where(hit, disc, 0.0)), 0.0)
+    points = t[..., None] * rays
+    depth = np.where(hit, -points[..., 2], 0.0)  # background: invalid depth
+    analytic = (points - centre) / radius
+    normals = normals_from_depth(depth, FOCAL, FOCAL, CX, CY)
+    assert np.isnan(normals[~hit]).all()
+    # Away from the silhouette (the analytic normal still faces the camera by > 25 deg).
+    interior = hit & (np.einsum("hwc,hwc->hw", analytic, -rays) > np.cos(np.deg2rad(65)))
+    assert interior.sum() > 200
+    errors = _angle_deg(normals[interior], analytic[interior])
+    assert np.median(errors) < 0.5 and errors.max() < 3.0
+
+
+def test_normals_through_a_distorted_nerfstudio_camera() -> None:
+    """With radial distortion, pinhole back-projection would bend the plane; nerfstudio's own rays keep it flat."""
+    meta = {"frames": [{"file_path": "x.png"}], "fl_x": FOCAL, "fl_y": FOCAL, "cx": CX, "cy": CY, "w": WIDTH,
+            "h": HEIGHT, "camera_model": "OPENCV", "k1": -0.25, "k2": 0.05, "p1": 0.001, "p2": -0.001}
+    rays = camera_rays(frame_camera(Transforms(Path("."), Path("t.json"), meta), meta["frames"][0]))
+    assert rays.shape == (HEIGHT, WIDTH, 3)
+    depth, normal = tilted_plane(rays)
+    points = depth[..., None] * rays / -rays[..., 2:]
+    normals = normals_from_points(points, depth > 0)
+    assert _angle_deg(normals, normal).max() < 0.05
+    pinhole = normals_from_depth(depth, FOCAL, FOCAL, CX, CY)
+    assert np.nanmax(_angle_deg(pinhole, normal)) > 1.0  # ignoring the distortion would be visibly wrong
+
+
+def test_lambertian_shading_of_known_normals() -> None:
+    rays = camera_ray_directions(HEIGHT, WIDTH, FOCAL, FOCAL, CX, CY)
+    facing = -rays  # every pixel's normal points back along its viewing ray: fully lit
+    np.testing.assert_allclose(lambertian_shading(facing, FOCAL, FOCAL, CX, CY), 1.0, atol=1e-12)
+    tilt = np.deg2rad(60.0)
+    fronto = np.broadcast_to([0.0, np.sin(tilt), np.cos(tilt)], rays.shape)
+    shading = lambertian_shading(fronto, FOCAL, FOCAL, CX, CY)
+    np.testing.assert_allclose(shading, np.clip(-(rays @ fronto[0, 0]), 0, 1), atol=1e-12)
+    # At the image centre the ray is (0, 0, -1): shading = cos(60 deg).
+    assert shading[HEIGHT // 2, WIDTH // 2] == pytest.approx(0.5, abs=0.01)
+    away = np.broadcast_to([0.0, 0.0, -1.0], rays.shape)  # facing away from the camera: unlit, not negative
+    assert lambertian_shading(away, FOCAL, FOCAL, CX, CY).max() == 0.0
+    unknown = np.full(rays.shape, np.nan)
+    assert np.isnan(lambertian_shading(unknown, FOCAL, FOCAL, CX, CY)).all()
