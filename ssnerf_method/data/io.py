@@ -27,13 +27,17 @@ class DatasetInputError(LabelFileError):
     """An input dataset file or folder that cannot be used; the message names it and says what to do."""
 
 
+def _missing(path: Path, what: str) -> DatasetInputError:
+    return DatasetInputError(f"{path}: {what} listed in the dataset does not exist. Add the file or remove the frame.")
+
+
 def read_image(path: Path, what: str = "image") -> np.ndarray:
     """An image file as stored: (H, W) or (H, W, C) in RGB(A) channel order, uint8 or uint16.
 
     Raises `DatasetInputError` naming `path` when it is missing or cannot be decoded.
     """
     if not path.is_file():
-        raise DatasetInputError(f"{path}: {what} listed in the dataset does not exist. Add the file or remove the frame.")
+        raise _missing(path, what)
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     if image is None or image.size == 0:
         raise DatasetInputError(f"{path}: {what} cannot be decoded (corrupt or not an image). Re-export the file.")
@@ -49,7 +53,7 @@ def image_size(path: Path, what: str = "image") -> Tuple[int, int]:
     from PIL import Image, UnidentifiedImageError
 
     if not path.is_file():
-        raise DatasetInputError(f"{path}: {what} listed in the dataset does not exist. Add the file or remove the frame.")
+        raise _missing(path, what)
     try:
         with Image.open(path) as image:
             return image.size

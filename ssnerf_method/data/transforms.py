@@ -58,7 +58,7 @@ def load_transforms(data: Path) -> Transforms:
     try:
         meta = json.loads(path.read_text())
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as err:
-        raise DatasetInputError(f"{path}: not valid JSON ({err}). Restore it from its backup or regenerate it.") from err
+        raise DatasetInputError(f"{path}: not valid JSON ({err}). Restore its backup or regenerate it.") from err
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
         raise DatasetInputError(f"{path}: has no \"frames\" list. It is not a nerfstudio transforms file.")
     transforms = Transforms(folder, path, meta)
