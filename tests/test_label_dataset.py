@@ -26,6 +26,7 @@ from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 from ssnerf_method.scripts.label import main
 
+from conftest import look_at
 from test_training import lite_config, train
 
 DERIVED = ("normals", "shading", "edges", "keypoints")
@@ -217,6 +218,33 @@ def test_capture_without_depth_labels_edges_and_keypoints_then_trains(tmp_path: 
     assert len(totals) == 3 and np.isfinite(totals).all()
     assert {"rgb_loss", "edges_loss", "keypoints_loss"} <= set(dicts[0])
     assert not {"normals_loss", "shading_loss", "semantics_loss"} & set(dicts[0])  # not derivable: not trained
+
+
+def test_blender_folder_gets_a_nerfstudio_transforms(tmp_path: Path) -> None:
+    """A Blender-synthetic folder (transforms_{train,val,test}.json, RGBA images, camera_angle_x) is read as
+    nerfstudio's blender-data reads it; the labels go into a new transforms.json that our dataparser trains from."""
+    root = tmp_path / "lego"
+    for split, count in (("train", 3), ("val", 1), ("test", 2)):
+        (root / split).mkdir(parents=True)
+        frames = []
+        for index in range(count):
+            rgba = np.zeros((20, 24, 4), dtype=np.uint8)
+            rgba[5:15, 6 + index : 16 + index] = (200, 120, 40, 255)
+            Image.fromarray(rgba, mode="RGBA").save(root / split / f"r_{index}.png")
+            c2w = look_at(np.array([np.cos(index), np.sin(index), 0.5]) * 3, np.zeros(3))
+            frames.append({"file_path": f"./{split}/r_{index}", "rotation": 0.03, "transform_matrix": c2w.tolist()})
+        (root / f"transforms_{split}.json").write_text(json.dumps({"camera_angle_x": 0.69, "frames": frames}))
+    before = snapshot(root)
+    report = run(root)
+    assert report.outcomes["edges"] == {LABELLED: 6} and report.backup_path is None
+    after = snapshot(root)
+    assert all(after[name] == content for name, content in before.items())  # the Blender files are untouched
+    meta = json.loads(after["transforms.json"])
+    assert meta["test_filenames"] == ["test/r_0.png", "test/r_1.png"] and meta["val_filenames"] == ["val/r_0.png"]
+    assert meta["fl_x"] == pytest.approx(0.5 * 24 / np.tan(0.5 * 0.69)) and (meta["w"], meta["h"]) == (24, 20)
+    outputs = SSNeRFDataParserConfig(data=root).setup().get_dataparser_outputs("test")
+    assert [Path(path).name for path in outputs.image_filenames] == ["r_0.png", "r_1.png"]
+    assert "edges" in outputs.metadata["available_properties"]
 
 
 def corrupt(path: Path) -> None:

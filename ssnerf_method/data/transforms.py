@@ -19,7 +19,7 @@ from jaxtyping import Float
 from nerfstudio.cameras import camera_utils
 from nerfstudio.cameras.cameras import CAMERA_MODEL_TO_TYPE, Cameras, CameraType
 
-from ssnerf_method.data.io import DatasetInputError
+from ssnerf_method.data.io import DatasetInputError, image_size
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
@@ -48,6 +48,8 @@ def load_transforms(data: Path) -> Transforms:
         folder, path = data.parent, data
     elif data.is_dir():
         folder, path = data, data / "transforms.json"
+        if not path.is_file() and (data / "transforms_train.json").is_file():
+            return _check(Transforms(folder, path, blender_as_nerfstudio(folder)))
         if not path.is_file():
             raise DatasetInputError(
                 f"{path}: missing. Point at a nerfstudio dataset folder (with a transforms.json, e.g. the output of "
@@ -61,7 +63,12 @@ def load_transforms(data: Path) -> Transforms:
         raise DatasetInputError(f"{path}: not valid JSON ({err}). Restore its backup or regenerate it.") from err
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
         raise DatasetInputError(f"{path}: has no \"frames\" list. It is not a nerfstudio transforms file.")
-    transforms = Transforms(folder, path, meta)
+    return _check(Transforms(folder, path, meta))
+
+
+def _check(transforms: Transforms) -> Transforms:
+    """Every frame has an image path, a camera model nerfstudio supports and intrinsics."""
+    meta, path = transforms.meta, transforms.path
     for frame in transforms.frames:
         if "file_path" not in frame:
             raise DatasetInputError(f"{path}: a frame has no \"file_path\". Give every frame its image path.")
@@ -78,6 +85,44 @@ def load_transforms(data: Path) -> Transforms:
                 "level). nerfstudio needs the intrinsics; add them."
             )
     return transforms
+
+
+BLENDER_SPLITS = ("train", "val", "test")
+
+
+def blender_as_nerfstudio(folder: Path) -> Dict:
+    """The nerfstudio-format transforms of a Blender-synthetic folder (`transforms_{train,val,test}.json`).
+
+    Read as nerfstudio's `blender-data` parser reads it: `file_path` plus ".png", OpenGL camera-to-world, focal length
+    from `camera_angle_x` and the first image's width, principal point at the centre; the three files give the split.
+    """
+    frames, splits = [], {}
+    angle = None
+    for split in BLENDER_SPLITS:
+        path = folder / f"transforms_{split}.json"
+        if not path.is_file():
+            continue
+        try:
+            meta = json.loads(path.read_text())
+            angle = float(meta["camera_angle_x"])
+            split_frames = [(frame["file_path"], frame["transform_matrix"]) for frame in meta["frames"]]
+        except (OSError, ValueError, KeyError, TypeError) as err:
+            raise DatasetInputError(
+                f"{path}: not a Blender transforms file (needs camera_angle_x and frames with file_path and "
+                f"transform_matrix; {err!r}). Fix the file or convert the data with ns-process-data."
+            ) from err
+        splits[f"{split}_filenames"] = []
+        for file_path, matrix in split_frames:
+            relative = file_path.removeprefix("./")
+            relative += "" if Path(relative).suffix else ".png"
+            frames.append({"file_path": relative, "transform_matrix": matrix})
+            splits[f"{split}_filenames"].append(relative)
+    if not frames:
+        raise DatasetInputError(f"{folder / 'transforms_train.json'}: lists no frames. Point at a dataset with frames.")
+    width, height = image_size(folder / frames[0]["file_path"], "image")
+    focal = 0.5 * width / np.tan(0.5 * angle)
+    intrinsics = {"fl_x": focal, "fl_y": focal, "cx": width / 2.0, "cy": height / 2.0, "w": width, "h": height}
+    return {"camera_model": "OPENCV", **intrinsics, **splits, "ssnerf_converted_from": "blender", "frames": frames}
 
 
 def frame_camera(transforms: Transforms, frame: Dict) -> Cameras:

@@ -9,8 +9,10 @@ frame's `<property>_file_path` key, keeps a label the frame already lists, or sk
 - shading: Lambertian, light at the camera centre, from the frame's normals (given or just derived);
 - semantics: never derived; copied (and converted from colours if need be) from `--semantics-dir`.
 
-Nothing is written unless every frame succeeds: labels go through `Staging`, the transforms file is replaced
-atomically after a one-time backup (`transforms.json.orig`) or written as a new file.
+A Blender-synthetic folder (no transforms.json, but `transforms_{train,val,test}.json`) is read as nerfstudio's
+`blender-data` reads it and gets a new transforms.json. Nothing is written unless every frame succeeds: labels go
+through `Staging`, the transforms file is replaced atomically after a one-time backup (`transforms.json.orig`) or
+written as a new file.
 """
 
 from __future__ import annotations
@@ -244,11 +246,12 @@ LABELLERS: Dict[str, Tuple[Labeller, Optional[Callable[[FrameContext, Path], Non
 
 
 def label_path(frame: Dict, name: str) -> PurePosixPath:
-    """Where a frame's label goes, relative to the dataset: `ssnerf_labels/<name>/<image path below its folder>.png`."""
-    relative = PurePosixPath(frame["file_path"])
-    parts = [part for part in relative.parts if part not in (".", "")]
-    below = PurePosixPath(*parts[1:]) if len(parts) > 1 else PurePosixPath(parts[-1])
-    return PurePosixPath(LABEL_FOLDER, name, below.with_suffix(".png"))
+    """Where a frame's label goes, relative to the dataset: `ssnerf_labels/<name>/<image path>.png`, without the
+    image path's leading `images/` (nerfstudio's usual folder); other folders are kept so that names stay unique."""
+    parts = [part for part in PurePosixPath(frame["file_path"]).parts if part not in (".", "")]
+    if len(parts) > 1 and parts[0] == "images":
+        parts = parts[1:]
+    return PurePosixPath(LABEL_FOLDER, name, *parts).with_suffix(".png")
 
 
 @dataclass
@@ -380,7 +383,7 @@ def label_dataset(
         meta["ssnerf_label"] = _provenance(config)
 
         staging.commit()
-        if config.output is None:
+        if config.output is None and transforms.path.exists():  # (a Blender folder has no transforms.json yet)
             report.backup_path = backup_once(transforms.path)
         write_json_atomic(output, meta)
     return report
