@@ -243,15 +243,7 @@ def import_paper_llff(config: PaperLLFFImportConfig) -> ImportSummary:
             semantic_colors=colors if with_semantics else None,
         )
 
-    summary = ImportSummary(
-        transforms_path=config.dst / "transforms.json",
-        layout=LAYOUT,
-        width=width,
-        height=height,
-        split_sizes={name: len(files) for name, files in splits.items()},
-        label_counts=writer.ordered_label_counts(),
-        num_frames=len(images),
-    )
+    summary = writer.summary(config.dst, LAYOUT, width, height, splits)
     if with_semantics:
         which = "NYUv2-13 (default)" if class_names == DEFAULT_CLASS_NAMES else "from --class-names"
         ids = ", ".join(f"{i}={name}" for i, name in enumerate(class_names))

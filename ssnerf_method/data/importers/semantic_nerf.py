@@ -268,15 +268,7 @@ def import_semantic_nerf(config: SemanticNeRFImportConfig) -> ImportSummary:
             semantic_colors=mapping.colors if mapping is not None else None,
         )
 
-    summary = ImportSummary(
-        transforms_path=config.dst / "transforms.json",
-        layout=LAYOUT,
-        width=width,
-        height=height,
-        split_sizes={name: len(files) for name, files in splits.items()},
-        label_counts=writer.ordered_label_counts(),
-        num_frames=len(selected),
-    )
+    summary = writer.summary(config.dst, LAYOUT, width, height, splits)
     if mapping is not None:
         summary.classes.extend(mapping.summary)
         summary.notes.extend(mapping.notes)

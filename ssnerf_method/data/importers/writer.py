@@ -176,6 +176,20 @@ class DatasetWriter:
         write_json_atomic(path, transforms)
         return path
 
+    def summary(
+        self, destination: Path, layout: str, width: int, height: int, splits: dict[str, list[str]]
+    ) -> ImportSummary:
+        """The console report's starting point for what this writer wrote (into `destination` once moved there)."""
+        return ImportSummary(
+            transforms_path=destination / "transforms.json",
+            layout=layout,
+            width=width,
+            height=height,
+            split_sizes={name: len(files) for name, files in splits.items()},
+            label_counts=self.ordered_label_counts(),
+            num_frames=len(self.frames),
+        )
+
     def ordered_label_counts(self) -> dict[str, int]:
         """`label_counts` in the property registry's order, depth last."""
         order = [*REGISTRY, "depth"]
