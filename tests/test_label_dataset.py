@@ -119,6 +119,31 @@ def test_with_depth_derives_every_label_and_keeps_the_original(scene: Path, tmp_
     assert after == before
 
 
+def test_low_resolution_npy_depth_like_record3d(scene: Path, tmp_path: Path) -> None:
+    """Phone captures (ns-process-data record3d/polycam) give depth as .npy in metres at a lower resolution than the
+    images: normals are derived at the depth's resolution and mapped to the image's pixels."""
+    data = strip_labels(scene, tmp_path / "data")
+    meta = json.loads((data / "transforms.json").read_text())
+    for frame in meta["frames"]:
+        depth = read(data / frame["depth_file_path"]).astype(np.float32) / 1000.0
+        path = Path(frame["depth_file_path"]).with_suffix(".npy")
+        np.save(data / path, depth[::2, ::2])
+        frame["depth_file_path"] = str(path)
+    (data / "transforms.json").write_text(json.dumps(meta))
+    report = run(data, edges=False, keypoints=False)
+    assert report.outcomes["normals"] == {LABELLED: 5}
+    truth = json.loads((scene / "transforms.json").read_text())
+    angles = []
+    for frame, true_frame in zip(json.loads((data / "transforms.json").read_text())["frames"], truth["frames"]):
+        derived = read(data / frame["normals_file_path"])
+        assert derived.shape[:2] == (48, 64)
+        labelled = derived[..., 3] > 0 if derived.shape[-1] == 4 else np.ones(derived.shape[:2], bool)
+        true_normals = decode_normals(read(scene / true_frame["normals_file_path"]))
+        cosine = np.einsum("hwc,hwc->hw", decode_normals(derived), true_normals)[labelled]
+        angles.append(np.rad2deg(np.arccos(np.clip(cosine, -1, 1))))
+    assert np.median(np.concatenate(angles)) < 5.0
+
+
 def test_switches_and_new_output_file(scene: Path, tmp_path: Path) -> None:
     data = strip_labels(scene, tmp_path / "data")
     before = snapshot(data)
