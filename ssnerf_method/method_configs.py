@@ -13,10 +13,10 @@ from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
 from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
-from nerfstudio.pipelines.base_pipeline import VanillaPipelineConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from ssnerf_method.data.datamanager import SSNeRFDataManagerConfig
+from ssnerf_method.evaluation.pipeline import SSNeRFPipelineConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 
 
@@ -33,7 +33,7 @@ ssnerf_config = TrainerConfig(
     max_num_iterations=200000,
     mixed_precision=False,
     machine=default_machine(),
-    pipeline=VanillaPipelineConfig(
+    pipeline=SSNeRFPipelineConfig(
         datamanager=SSNeRFDataManagerConfig(train_num_rays_per_batch=1024, eval_num_rays_per_batch=1024),
         model=SSNeRFModelConfig(eval_num_rays_per_chunk=4096),
     ),
@@ -57,7 +57,7 @@ ssnerf_lite_config = TrainerConfig(
     max_num_iterations=30000,
     mixed_precision=False,
     machine=default_machine(),
-    pipeline=VanillaPipelineConfig(
+    pipeline=SSNeRFPipelineConfig(
         datamanager=SSNeRFDataManagerConfig(train_num_rays_per_batch=1024, eval_num_rays_per_batch=1024),
         model=SSNeRFModelConfig(
             eval_num_rays_per_chunk=8192,

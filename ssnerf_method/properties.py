@@ -259,7 +259,7 @@ class PropertySpec:
     """Loss name, implemented in `ssnerf_method/model/losses.py`."""
     weight: float
     """Loss weight lambda (paper Sec. 4.1)."""
-    metric: Literal["psnr", "miou", "l1"]
+    metric: Literal["psnr", "miou", "l1", "normal"]
     """Evaluation metric, implemented in `ssnerf_method/evaluation/metrics.py`."""
     colormap: str
     """Display colour mapping: "default" for images already in colour, else a nerfstudio colormap name."""
@@ -289,7 +289,7 @@ REGISTRY: Dict[str, PropertySpec] = {
     for spec in (
         PropertySpec("rgb", "RGB", ColorKind(), None, "v", "mse", 1.0, "psnr", "default"),
         PropertySpec("semantics", "SL", ClassKind(), "semantics_file_path", "nv", "cross_entropy", 0.04, "miou", "default"),
-        PropertySpec("normals", "SN", NormalKind(), "normals_file_path", "nv", "mse", 1.0, "l1", "default"),
+        PropertySpec("normals", "SN", NormalKind(), "normals_file_path", "nv", "mse", 1.0, "normal", "default"),
         PropertySpec("shading", "SH", ScalarKind("sigmoid"), "shading_file_path", "v", "l1", 0.1, "l1", "gray"),
         PropertySpec("keypoints", "KP", ScalarKind("relu"), "keypoints_file_path", "v", "l1", 2.0, "l1", "gray"),
         PropertySpec("edges", "ED", ScalarKind("sigmoid"), "edges_file_path", "v", "l1", 0.4, "l1", "gray"),

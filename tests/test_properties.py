@@ -219,7 +219,7 @@ def test_paper_choices() -> None:
         # name: (short, branch, loss, weight, metric)
         "rgb": ("RGB", "v", "mse", 1.0, "psnr"),
         "semantics": ("SL", "nv", "cross_entropy", 0.04, "miou"),
-        "normals": ("SN", "nv", "mse", 1.0, "l1"),
+        "normals": ("SN", "nv", "mse", 1.0, "normal"),
         "shading": ("SH", "v", "l1", 0.1, "l1"),
         "keypoints": ("KP", "v", "l1", 2.0, "l1"),
         "edges": ("ED", "v", "l1", 0.4, "l1"),

@@ -6,13 +6,11 @@ import math
 
 import pytest
 import torch
-import torch.nn.functional as F
 
 from nerfstudio.cameras.rays import RayBundle, RaySamples
 from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.field_components.field_heads import FieldHeadNames
 
-from ssnerf_method.evaluation.metrics import METRICS, l1_metrics, miou_metrics, psnr_metrics
 from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY
 from ssnerf_method.model.losses import LOSSES, cross_entropy_loss, l1_loss, mse_loss
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
@@ -305,41 +303,3 @@ def test_all_invalid_gives_zero_with_gradient_path(name: str) -> None:
     assert loss.requires_grad
     loss.backward()
     assert torch.equal(prediction.grad, torch.zeros(4, 3))
-
-
-# ---------------------------------------------------------------------------------------------------- metrics
-
-
-def test_psnr_metrics() -> None:
-    image = torch.rand(8, 8, 3, generator=torch.Generator().manual_seed(0))
-    same = psnr_metrics(image, image, torch.ones(8, 8, dtype=torch.bool), 0)
-    assert same["psnr"] > 60 and same["ssim"] > 0.99
-    off = psnr_metrics(torch.full((8, 8, 3), 0.5), torch.full((8, 8, 3), 0.6), torch.ones(8, 8, dtype=torch.bool), 0)
-    assert off["psnr"] == pytest.approx(20.0, abs=1e-3)  # mse 0.01
-
-
-def test_l1_metric_hand_computed() -> None:
-    prediction = torch.tensor([[[0.2], [0.5]], [[1.0], [0.0]]])
-    label = torch.tensor([[[0.4], [0.5]], [[float("nan")], [0.3]]])
-    valid = ScalarKind("sigmoid").valid(label)
-    result = l1_metrics(prediction, label, valid, 0)
-    assert result["l1"] == pytest.approx((0.2 + 0.0 + 0.3) / 3)
-    assert math.isnan(l1_metrics(prediction, torch.full_like(label, float("nan")),
-                                 torch.zeros(2, 2, dtype=torch.bool), 0)["l1"])
-
-
-def test_miou_hand_computed() -> None:
-    num_classes = 4
-    labels = torch.tensor([[0, 0, 1], [1, 2, SEMANTIC_IGNORE]], dtype=torch.float32)[..., None]
-    predicted = torch.tensor([[0, 1, 1], [1, 3, 0]])
-    logits = F.one_hot(predicted, num_classes).float() * 3.0
-    valid = ClassKind().valid(labels)
-    result = miou_metrics(logits, labels, valid, num_classes)
-    # class 0: TP 1, union 2; class 1: TP 2, union 3; class 2: TP 0, union 1; class 3 absent from labels: ignored
-    assert result["miou"] == pytest.approx((1 / 2 + 2 / 3 + 0) / 3)
-    assert result["acc"] == pytest.approx(3 / 5)
-    assert METRICS["miou"] is miou_metrics
-    perfect = miou_metrics(F.one_hot(labels[..., 0].long().clamp(max=3), num_classes).float(), labels, valid, num_classes)
-    assert perfect["miou"] == pytest.approx(1.0)
-    nothing = miou_metrics(logits, torch.full_like(labels, SEMANTIC_IGNORE), torch.zeros(2, 3, dtype=torch.bool), 4)
-    assert math.isnan(nothing["miou"])

@@ -74,6 +74,7 @@ class SSNeRFDataParser(Nerfstudio):
                 "semantic_classes": classes or [],
                 "semantic_colors": colors,
                 "label_sizes": label_sizes,
+                "dataparser_scale": float(outputs.dataparser_scale),
             }
         )
         add_pose_metadata(outputs.cameras)

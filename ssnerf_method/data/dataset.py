@@ -1,6 +1,7 @@
 """Dataset that returns, with each RGB image, a label tensor per property (ignore-filled where a frame lacks it).
 
-Labels are image-shaped, so nerfstudio's pixel sampler picks the same pixels from RGB and every property.
+Labels are image-shaped, so nerfstudio's pixel sampler picks the same pixels from RGB and every property. When the
+frames have depth maps, their z-depth in metres is returned too (`DEPTH_KEY`), for the depth metrics.
 """
 
 from __future__ import annotations
@@ -11,8 +12,12 @@ import torch
 import torch.nn.functional as F
 
 from nerfstudio.data.datasets.base_dataset import InputDataset
+from nerfstudio.data.utils.data_utils import get_depth_image_from_path
 
 from ssnerf_method.properties import REGISTRY
+
+DEPTH_KEY = "depth_metres"
+"""Batch key of the ground-truth z-depth in metres (0 where the depth map has no value)."""
 
 
 class SSNeRFDataset(InputDataset):
@@ -23,6 +28,8 @@ class SSNeRFDataset(InputDataset):
         self.property_files = self.metadata.get("property_files", {})
         self.label_sizes = self.metadata.get("label_sizes", [])
         self.num_classes = len(self.metadata.get("semantic_classes", []))
+        self.depth_files = self.metadata.get("depth_filenames")
+        self.depth_unit = self.metadata.get("depth_unit_scale_factor", 1e-3)
 
     def get_metadata(self, data: Dict) -> Dict[str, torch.Tensor]:
         index = data["image_idx"]
@@ -40,4 +47,6 @@ class SSNeRFDataset(InputDataset):
                 label = F.interpolate(label.permute(2, 0, 1)[None], size=(height, width), mode="nearest")[0]
                 label = label.permute(1, 2, 0)
             labels[name] = label
+        if self.depth_files is not None:
+            labels[DEPTH_KEY] = get_depth_image_from_path(self.depth_files[index], height, width, self.depth_unit)
         return labels

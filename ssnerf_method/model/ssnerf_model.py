@@ -24,7 +24,8 @@ from nerfstudio.models.base_model import Model, ModelConfig
 from nerfstudio.utils import colormaps
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from ssnerf_method.evaluation.metrics import METRICS
+from ssnerf_method.data.dataset import DEPTH_KEY
+from ssnerf_method.evaluation.metrics import METRICS, Statistics
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
 from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField, add_pose_metadata
 from ssnerf_method.model.losses import LOSSES
@@ -44,6 +45,10 @@ from ssnerf_method.rendering.sampling import (
     SampleLevel,
     SamplingResult,
 )
+
+
+DEPTH_METRIC = "depth"
+"""Metric (and metric-name prefix) of rendered depth against the data's depth maps; depth is scored, not trained."""
 
 
 @dataclass
@@ -135,6 +140,8 @@ class SSNeRFModel(Model):
             normals_mode=self.config.normals_mode,
             losses=self.config.losses,
         )
+        # world units per metre (the dataparser rescales poses); depth metrics are reported in metres
+        self.dataparser_scale = float(metadata.get("dataparser_scale", 1.0))
         self.register_buffer("palette", semantic_palette(self.num_classes, metadata.get("semantic_colors")))
 
         self.sampling: RaySampling = self._build_sampling()
@@ -211,6 +218,8 @@ class SSNeRFModel(Model):
                 outputs[spec.name] = spec.kind.display(outputs[spec.prediction_key], self.palette)
         outputs["depth"] = self.renderer_depth(weights=final.weights, ray_samples=final.ray_samples)
         outputs["accumulation"] = self.renderer_accumulation(weights=final.weights)
+        if ray_bundle.metadata and "directions_norm" in ray_bundle.metadata:
+            outputs["directions_norm"] = ray_bundle.metadata["directions_norm"]
         if self.training and result.weights_list:
             outputs["weights_list"] = result.weights_list
             outputs["ray_samples_list"] = result.ray_samples_list
@@ -251,18 +260,40 @@ class SSNeRFModel(Model):
         """Render a full camera; its rays carry the camera pose (viewer and render cameras lack it)."""
         return super().get_outputs_for_camera(add_pose_metadata(camera), obb_box=obb_box)
 
+    def get_image_statistics(self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]) -> Dict[str, Statistics]:
+        """Each property's additive metric statistics on one image (and depth's, when the data has depth maps)."""
+        statistics: Dict[str, Statistics] = {}
+        for spec in self.specs:
+            label = spec.label(batch, self.num_classes).to(self.device)
+            metric = METRICS[spec.metric]
+            prediction = outputs[spec.prediction_key]
+            statistics[spec.name] = metric.statistics(prediction, label, spec.kind.valid(label), self.num_classes)
+        if DEPTH_KEY in batch and "directions_norm" in outputs:
+            truth = batch[DEPTH_KEY].to(self.device)
+            # rendered depth is the distance along the unit ray; z-depth divides by the camera-frame ray's length
+            z_depth = outputs["depth"] / outputs["directions_norm"] / self.dataparser_scale
+            valid = (torch.isfinite(truth) & (truth > 0))[..., 0]
+            statistics[DEPTH_METRIC] = METRICS[DEPTH_METRIC].statistics(z_depth, truth, valid, self.num_classes)
+        return statistics
+
+    def metrics_from_statistics(self, statistics: Dict[str, Statistics]) -> Dict[str, float]:
+        """Named metrics (`psnr`, `semantics_miou`, `normals_angle_mean_deg`, `depth_l1`, ...) from statistics of one
+        image or summed over a split."""
+        metrics: Dict[str, float] = {}
+        specs = {spec.name: spec for spec in self.specs}
+        for name, values in statistics.items():
+            metric, prefix = (specs[name].metric, specs[name].metric_prefix) if name in specs else (name, f"{name}_")
+            metrics.update({prefix + key: value for key, value in METRICS[metric].summarize(values).items()})
+        return metrics
+
     def get_image_metrics_and_images(
         self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]
     ) -> Tuple[Dict[str, float], Dict[str, Tensor]]:
         """Every property's metric on one image, and ground truth | prediction images for logging."""
-        metrics: Dict[str, float] = {}
+        metrics = self.metrics_from_statistics(self.get_image_statistics(outputs, batch))
         images: Dict[str, Tensor] = {}
         for spec in self.specs:
             label = spec.label(batch, self.num_classes).to(self.device)
-            valid = spec.kind.valid(label)
-            prediction = outputs[spec.prediction_key]
-            for name, value in METRICS[spec.metric](prediction, label, valid, self.num_classes).items():
-                metrics[spec.metric_prefix + name] = value
             shown_label = spec.kind.display(spec.kind.label_as_prediction(label, self.num_classes), self.palette)
             shown = torch.cat([shown_label, outputs[spec.name]], dim=1)
             images[spec.name] = shown if shown.shape[-1] == 3 else colormaps.apply_colormap(shown)

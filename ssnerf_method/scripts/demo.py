@@ -13,7 +13,7 @@ import time
 from copy import deepcopy
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Literal, Optional
+from typing import Dict, Literal, Optional
 
 import numpy as np
 import torch
@@ -27,7 +27,7 @@ from nerfstudio.utils import colormaps
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from ssnerf_method.evaluation.metrics import METRICS
+from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 from ssnerf_method.properties import PropertySpec
@@ -71,11 +71,12 @@ def display_image(spec: PropertySpec, image: torch.Tensor) -> np.ndarray:
 
 
 def nearest_view_baseline(pipeline: Pipeline) -> Dict[str, float]:
-    """Score of copying the nearest training view's labels (closest camera centre, then view direction)."""
+    """Score of copying the nearest training view's labels (closest camera centre, then view direction), with the
+    split-level metrics `ns-eval` reports."""
     model: SSNeRFModel = pipeline.model  # type: ignore[assignment]
     train, test = pipeline.datamanager.train_dataset, pipeline.datamanager.eval_dataset  # type: ignore[attr-defined]
     train_poses, test_poses = train.cameras.camera_to_worlds, test.cameras.camera_to_worlds
-    scores: Dict[str, List[float]] = {}
+    totals: Dict[str, Statistics] = {}
     for test_index in range(len(test)):
         distance = torch.linalg.norm(train_poses[:, :, 3] - test_poses[test_index, :, 3], dim=-1)
         alignment = (train_poses[:, :, 2] * test_poses[test_index, :, 2]).sum(-1)
@@ -84,24 +85,22 @@ def nearest_view_baseline(pipeline: Pipeline) -> Dict[str, float]:
         for spec in model.specs:
             label, copied = spec.label(target, model.num_classes), spec.label(source, model.num_classes)
             copied = spec.kind.label_as_prediction(copied, model.num_classes)
-            for name, value in METRICS[spec.metric](copied, label, spec.kind.valid(label), model.num_classes).items():
-                scores.setdefault(spec.metric_prefix + name, []).append(value)
-    return {name: float(np.nanmean(values)) for name, values in scores.items()}
+            view = METRICS[spec.metric].statistics(copied, label, spec.kind.valid(label), model.num_classes)
+            totals[spec.name] = add_statistics(totals.get(spec.name, {}), view)
+    return model.metrics_from_statistics(totals)
 
 
 def evaluate(pipeline: Pipeline, renders_dir: Optional[Path]) -> Dict[str, float]:
-    """Average per-image metrics over the test views (as `ns-eval` does); optionally write the renders."""
+    """The test split's metrics as `ns-eval` computes them; optionally ground truth | rendering PNGs per view."""
     model: SSNeRFModel = pipeline.model  # type: ignore[assignment]
+    scores = pipeline.get_average_eval_image_metrics()
+    scores = {name: value for name, value in scores.items() if name not in ("num_rays_per_sec", "fps")}
+    if renders_dir is None:
+        return scores
     model.eval()
-    scores: Dict[str, List[float]] = {}
     dataloader = pipeline.datamanager.fixed_indices_eval_dataloader  # type: ignore[attr-defined]
     for view, (camera, batch) in enumerate(dataloader):
         outputs = model.get_outputs_for_camera(camera)
-        metrics, _ = model.get_image_metrics_and_images(outputs, batch)
-        for name, value in metrics.items():
-            scores.setdefault(name, []).append(value)
-        if renders_dir is None:
-            continue
         view_dir = renders_dir / f"test_view_{view:02d}"
         view_dir.mkdir(parents=True, exist_ok=True)
         for spec in model.specs:
@@ -109,7 +108,7 @@ def evaluate(pipeline: Pipeline, renders_dir: Optional[Path]) -> Dict[str, float
             truth = spec.kind.display(spec.kind.label_as_prediction(label, model.num_classes), model.palette)
             pair = np.concatenate([display_image(spec, truth), display_image(spec, outputs[spec.name])], axis=1)
             Image.fromarray(pair).save(view_dir / f"{spec.name}.png")
-    return {name: float(np.nanmean(values)) for name, values in scores.items()}
+    return scores
 
 
 def print_table(columns: Dict[str, Dict[str, float]]) -> None:
