@@ -133,6 +133,11 @@ class PropertyKind(ABC):
         """A label in the rendered prediction's layout (for display), unlabelled pixels zeroed."""
         return torch.nan_to_num(label, nan=0.0)
 
+    def reframe(self, label: Tensor, rotation: Float[Tensor, "3 3"]) -> Tensor:
+        """A label moved to another camera whose frame is `rotation` @ this one's (labels warped between views).
+        Most properties are not vectors in the camera frame and stay as they are."""
+        return label
+
 
 class ColorKind(PropertyKind):
     """RGB radiance: sigmoid per sample, composited over the background by nerfstudio's `RGBRenderer`."""
@@ -209,6 +214,10 @@ class NormalKind(PropertyKind):
         normals = NormalsRenderer()(values, weights, normalize=True)
         normals = torch.einsum("...ij,...j->...i", context.world_to_camera, normals)
         return (F.normalize(normals, dim=-1) + 1.0) / 2.0
+
+    def reframe(self, label: Tensor, rotation: Tensor) -> Tensor:
+        normals = torch.einsum("ij,...j->...i", rotation.to(label), label * 2.0 - 1.0)
+        return (normals + 1.0) / 2.0
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
         array, labelled = _read_uint8(path, width, height, 3, "normals ((n+1)/2 per channel)", alpha=True)

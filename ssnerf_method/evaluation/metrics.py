@@ -12,12 +12,14 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from typing import Dict
+from typing import Dict, Sequence
 
 import torch
 from jaxtyping import Bool, Float
 from torch import Tensor
 from torchmetrics.functional import structural_similarity_index_measure
+
+from ssnerf_method.properties import PropertySpec
 
 Statistics = Dict[str, Tensor]
 
@@ -188,6 +190,22 @@ class DepthMetric(Metric):
 def add_statistics(total: Statistics, more: Statistics) -> Statistics:
     """Sum of two views' (or partial splits') statistics."""
     return {key: total[key] + more[key] for key in total} if total else dict(more)
+
+
+DEPTH_METRIC = "depth"
+"""Metric (and metric-name prefix) of rendered depth against the data's depth maps; depth is scored, not trained."""
+
+
+def summarize(statistics: Dict[str, Statistics], specs: Sequence[PropertySpec]) -> Dict[str, float]:
+    """Named metrics (`psnr`, `semantics_miou`, `normals_angle_mean_deg`, `depth_l1`, ...) from per-property
+    statistics of one view or summed over a split; `specs` give each property's metric and name prefix."""
+    by_name = {spec.name: spec for spec in specs}
+    metrics: Dict[str, float] = {}
+    for name, values in statistics.items():
+        spec = by_name.get(name)
+        metric, prefix = (spec.metric, spec.metric_prefix) if spec is not None else (name, f"{name}_")
+        metrics.update({prefix + key: value for key, value in METRICS[metric].summarize(values).items()})
+    return metrics
 
 
 METRICS: Dict[str, Metric] = {

@@ -25,7 +25,7 @@ from nerfstudio.utils import colormaps
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataset import DEPTH_KEY
-from ssnerf_method.evaluation.metrics import METRICS, Statistics
+from ssnerf_method.evaluation.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
 from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField, add_pose_metadata
 from ssnerf_method.model.losses import LOSSES
@@ -45,10 +45,6 @@ from ssnerf_method.rendering.sampling import (
     SampleLevel,
     SamplingResult,
 )
-
-
-DEPTH_METRIC = "depth"
-"""Metric (and metric-name prefix) of rendered depth against the data's depth maps; depth is scored, not trained."""
 
 
 @dataclass
@@ -277,14 +273,8 @@ class SSNeRFModel(Model):
         return statistics
 
     def metrics_from_statistics(self, statistics: Dict[str, Statistics]) -> Dict[str, float]:
-        """Named metrics (`psnr`, `semantics_miou`, `normals_angle_mean_deg`, `depth_l1`, ...) from statistics of one
-        image or summed over a split."""
-        metrics: Dict[str, float] = {}
-        specs = {spec.name: spec for spec in self.specs}
-        for name, values in statistics.items():
-            metric, prefix = (specs[name].metric, specs[name].metric_prefix) if name in specs else (name, f"{name}_")
-            metrics.update({prefix + key: value for key, value in METRICS[metric].summarize(values).items()})
-        return metrics
+        """Named metrics from statistics of one image or summed over a split (`evaluation.metrics.summarize`)."""
+        return summarize(statistics, self.specs)
 
     def get_image_metrics_and_images(
         self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]

@@ -1,0 +1,168 @@
+"""The paper's Heuristic baseline: a test view's labels forward-projected from the nearest training views.
+
+For a test camera, training views are ranked by pose distance (`pose_distance`). The nearest one's pixels are lifted
+to 3D with its depth map, moved into the test camera and splatted with a z-buffer (each source pixel lands on the
+pixel containing its projection; the closest point wins). Test pixels still empty are filled from the next-nearest
+views in turn, then from the nearest filled pixel. Labels that are vectors in the camera frame (normals) are rotated
+into the test camera (`PropertyKind.reframe`); class ids are copied, never blended.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence, Tuple
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from scipy.ndimage import distance_transform_edt
+from torch import Tensor
+
+from nerfstudio.cameras.cameras import Cameras
+
+from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
+from ssnerf_method.properties import PropertySpec
+
+
+@dataclass
+class PinholeView:
+    """One camera: intrinsics in nerfstudio's pixel convention (pixel (row i, column j) centred at (j + 0.5, i + 0.5))
+    and its OpenGL camera-to-world (x right, y up, looking along -z)."""
+
+    fx: float
+    fy: float
+    cx: float
+    cy: float
+    width: int
+    height: int
+    camera_to_world: Float[np.ndarray, "3 4"]
+
+    @classmethod
+    def from_cameras(cls, cameras: Cameras, index: int) -> "PinholeView":
+        camera = cameras[index]
+        return cls(
+            float(camera.fx), float(camera.fy), float(camera.cx), float(camera.cy), int(camera.width),
+            int(camera.height), camera.camera_to_worlds.numpy().astype(np.float64),
+        )
+
+    @property
+    def rotation(self) -> np.ndarray:
+        return self.camera_to_world[:, :3]
+
+    @property
+    def centre(self) -> np.ndarray:
+        return self.camera_to_world[:, 3]
+
+
+def pose_distance(a: PinholeView, b: PinholeView, angle_weight: float = 0.5) -> float:
+    """Distance between camera centres (scene units) plus `angle_weight` x the angle between viewing directions
+    (radians): the nearest view is close and looks the same way."""
+    cosine = float(np.clip(np.dot(-a.rotation[:, 2], -b.rotation[:, 2]), -1.0, 1.0))
+    return float(np.linalg.norm(a.centre - b.centre)) + angle_weight * float(np.arccos(cosine))
+
+
+def splat(
+    source: PinholeView, depth: Float[np.ndarray, "h w"], target: PinholeView
+) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where each source pixel lands in the target view, z-buffered.
+
+    Returns, for every target pixel that received a point, its flat index, the flat index of the source pixel that
+    won it (the nearest to the target camera) and that point's z-depth in the target camera.
+    """
+    rows, cols = np.mgrid[0 : source.height, 0 : source.width]
+    valid = np.isfinite(depth) & (depth > 0)
+    z = depth[valid]
+    x = (cols[valid] + 0.5 - source.cx) / source.fx * z
+    y = -(rows[valid] + 0.5 - source.cy) / source.fy * z
+    points_camera = np.stack([x, y, -z], axis=-1)
+    points_world = points_camera @ source.rotation.T + source.centre
+    points_target = (points_world - target.centre) @ target.rotation
+    z_target = -points_target[:, 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = target.fx * points_target[:, 0] / z_target + target.cx
+        v = -target.fy * points_target[:, 1] / z_target + target.cy
+    column, row = np.floor(u), np.floor(v)
+    inside = (z_target > 1e-9) & (column >= 0) & (column < target.width) & (row >= 0) & (row < target.height)
+    target_index = (row[inside] * target.width + column[inside]).astype(np.int64)
+    source_index = np.flatnonzero(valid.reshape(-1))[inside]
+    z_kept = z_target[inside]
+    order = np.lexsort((z_kept, target_index))  # by target pixel, nearest first
+    target_index, source_index, z_kept = target_index[order], source_index[order], z_kept[order]
+    first = np.unique(target_index, return_index=True)[1]
+    return target_index[first], source_index[first], z_kept[first]
+
+
+def nearest_filled(filled: np.ndarray) -> np.ndarray:
+    """(H, W) flat index of the nearest filled pixel of every pixel (itself where filled)."""
+    _, (rows, cols) = distance_transform_edt(~filled, return_indices=True)
+    return rows * filled.shape[1] + cols
+
+
+@dataclass
+class HeuristicBaselineConfig:
+    """The Heuristic baseline's choices."""
+
+    num_source_views: int = 2
+    """Training views splatted in turn, nearest first (the rest of the holes take the nearest filled pixel)."""
+    angle_weight: float = 0.5
+    """Scene units of camera-centre distance one radian of viewing-direction difference counts for."""
+
+
+class HeuristicBaseline:
+    """Labels of test views forward-projected from the training views' labels and depth maps."""
+
+    def __init__(
+        self, train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, dataparser_scale: float,
+        config: Optional[HeuristicBaselineConfig] = None,
+    ) -> None:
+        self.train = train
+        self.specs = [spec for spec in specs if spec.file_key is not None]
+        self.num_classes = num_classes
+        self.scale = dataparser_scale
+        self.config = config or HeuristicBaselineConfig()
+        self.views = [PinholeView.from_cameras(train.cameras, index) for index in range(len(train))]
+        self._items: Dict[int, Dict[str, Tensor]] = {}
+
+    def item(self, index: int) -> Dict[str, Tensor]:
+        """A training view's image, labels and depth (read once)."""
+        if index not in self._items:
+            self._items[index] = self.train[index]
+        return self._items[index]
+
+    def source_order(self, target: PinholeView) -> List[int]:
+        distances = [pose_distance(target, view, self.config.angle_weight) for view in self.views]
+        return list(np.argsort(distances, kind="stable"))
+
+    def predict_view(self, cameras: Cameras, index: int) -> Dict[str, Tensor]:
+        """Each property's prediction (in the model's prediction layout) for camera `index` of `cameras`."""
+        labels = self.predict(PinholeView.from_cameras(cameras, index))
+        return {spec.name: spec.kind.label_as_prediction(labels[spec.name], self.num_classes) for spec in self.specs}
+
+    def predict(self, target: PinholeView) -> Dict[str, Tensor]:
+        """Each property's warped label (label layout; unlabelled source pixels stay unlabelled) for `target`."""
+        size = target.height * target.width
+        winner_view = np.full(size, -1)
+        winner_pixel = np.zeros(size, dtype=np.int64)
+        for source_index in self.source_order(target)[: self.config.num_source_views]:
+            item = self.item(int(source_index))
+            if DEPTH_KEY not in item:
+                raise ValueError("the Heuristic baseline warps labels with depth; the training views have none")
+            depth = item[DEPTH_KEY][..., 0].numpy().astype(np.float64) * self.scale
+            hit, pixel, _ = splat(self.views[source_index], depth, target)
+            empty = winner_view[hit] < 0
+            winner_view[hit[empty]], winner_pixel[hit[empty]] = source_index, pixel[empty]
+        filled = (winner_view >= 0).reshape(target.height, target.width)
+        if filled.any() and not filled.all():
+            nearest = nearest_filled(filled).reshape(-1)
+            winner_view, winner_pixel = winner_view[nearest], winner_pixel[nearest]
+        return {spec.name: self._gather(spec, winner_view, winner_pixel, target) for spec in self.specs}
+
+    def _gather(self, spec: PropertySpec, views: np.ndarray, pixels: np.ndarray, target: PinholeView) -> Tensor:
+        channels = spec.kind.label_channels(self.num_classes)
+        result = spec.kind.missing(target.width, target.height, self.num_classes).reshape(-1, channels)
+        for source_index in np.unique(views[views >= 0]):
+            chosen = views == source_index
+            label = spec.label(self.item(int(source_index)), self.num_classes).reshape(-1, channels)
+            rotation = torch.from_numpy(target.rotation.T @ self.views[int(source_index)].rotation).float()
+            result[torch.from_numpy(chosen)] = spec.kind.reframe(label[torch.from_numpy(pixels[chosen])], rotation)
+        return result.reshape(target.height, target.width, channels)

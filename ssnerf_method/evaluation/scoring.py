@@ -1,0 +1,35 @@
+"""Scoring any predictor of scene properties (SS-NeRF, a baseline) on a dataset's views with the split-level metrics."""
+
+from __future__ import annotations
+
+from typing import Callable, Dict, Sequence
+
+from torch import Tensor
+
+from nerfstudio.cameras.cameras import Cameras
+
+from ssnerf_method.data.dataset import SSNeRFDataset
+from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics, summarize
+from ssnerf_method.properties import PropertySpec
+
+Predictor = Callable[[Cameras, int], Dict[str, Tensor]]
+"""(cameras, index) -> property name -> prediction for that view, in the model's prediction layout."""
+
+
+def score_predictor(
+    predict: Predictor, dataset: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int
+) -> Dict[str, float]:
+    """Split-level metrics (`evaluation.metrics`) of `predict` on every view of `dataset`, for the properties it
+    predicts among `specs`."""
+    totals: Dict[str, Statistics] = {}
+    for index in range(len(dataset)):
+        predictions = predict(dataset.cameras, index)
+        item = dataset[index]
+        for spec in specs:
+            if spec.name not in predictions:
+                continue
+            label = spec.label(item, num_classes)
+            prediction = predictions[spec.name].to(label.device)
+            view = METRICS[spec.metric].statistics(prediction, label, spec.kind.valid(label), num_classes)
+            totals[spec.name] = add_statistics(totals.get(spec.name, {}), view)
+    return summarize(totals, specs)
