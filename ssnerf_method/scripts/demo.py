@@ -23,14 +23,13 @@ from rich.table import Table
 
 from nerfstudio.pipelines.base_pipeline import Pipeline
 from nerfstudio.scripts.train import main as train_main
-from nerfstudio.utils import colormaps
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.evaluation.figures import display_image
 from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
-from ssnerf_method.properties import PropertySpec
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
 
@@ -60,14 +59,6 @@ class DemoConfig:
     """Also score the untrained model (step 0), to show what training adds."""
     overwrite: bool = False
     """Replace an earlier demo run in OUTPUT_DIR."""
-
-
-def display_image(spec: PropertySpec, image: torch.Tensor) -> np.ndarray:
-    """A display image (3 colour channels, or one channel in [0, 1]) as 8-bit RGB, colour-mapped per the registry."""
-    if image.shape[-1] != 3:
-        options = colormaps.ColormapOptions(colormap=spec.colormap, colormap_min=0.0, colormap_max=1.0)  # type: ignore
-        image = colormaps.apply_colormap(image, options)
-    return (image.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
 
 
 def nearest_view_baseline(pipeline: Pipeline) -> Dict[str, float]:

@@ -1,0 +1,1 @@
+"""Experiments: the benchmark that writes the paper's tables."""

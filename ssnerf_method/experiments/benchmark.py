@@ -1,0 +1,279 @@
+"""`ssnerf-benchmark`: the paper's Table 1 (SS-NeRF against the Heuristic and Hybrid baselines, per property) and
+Table 2-left (RGB PSNR of NeRF against each single-property SS-NeRF) for any set of scenes, in one command.
+
+Per scene it trains, with nerfstudio's trainer, one SS-NeRF per property (as the paper does), an RGB-only NeRF (the
+same model with no property) and, as one extra row, the all-properties SS-NeRF; scores each on the test split with
+the metrics `ns-eval` reports; runs the Heuristic baseline (labels warped from the nearest training views) and the
+Hybrid baseline (per-property annotators applied to the NeRF's renders); and writes `report.md`, `tables.json` and a
+figure per scene (ground truth, SS-NeRF, Heuristic, Hybrid on one test view, every property side by side).
+
+Every finished step leaves its result under `OUTPUT/runs/<scene>/`; running the command again skips it, so a stopped
+run resumes where it stopped (a finished model is never retrained).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from copy import deepcopy
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Dict, List, Literal, Optional, Tuple
+
+import numpy as np
+import torch
+import tyro
+
+from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.pipelines.base_pipeline import Pipeline
+from nerfstudio.scripts.train import main as train_main
+from nerfstudio.utils.eval_utils import eval_setup
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from ssnerf_method.evaluation.figures import display_image, property_grid
+from ssnerf_method.evaluation.heuristic import HeuristicBaseline, HeuristicBaselineConfig
+from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
+from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.experiments.report import write_report
+from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertySpec, resolve_properties
+from ssnerf_method.rendering.palette import semantic_palette
+from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
+
+DEFAULT_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
+"""Training steps per model unless --steps is given (the demo's)."""
+
+NERF = "nerf"
+"""Run name of the RGB-only model (the Hybrid baseline's renderer and Table 2's NeRF row)."""
+ALL = "ssnerf-all"
+"""Run name of the all-properties model."""
+
+
+@dataclass
+class BenchmarkConfig:
+    """Train and score SS-NeRF and the paper's two baselines on scenes; write Table 1, Table 2-left and figures."""
+
+    scenes: Tuple[Path, ...] = ()
+    """Datasets in the SS-NeRF format. Default: two generated default scenes (seeds 0 and 1) in OUTPUT/scenes."""
+    method: Literal["ssnerf-lite", "ssnerf"] = "ssnerf-lite"
+    """Architecture of every trained model (the NeRF too: the same model with RGB only)."""
+    output: Path = Path("benchmark_report")
+    """Folder for the report, the figures and every run (resumable)."""
+    steps: Optional[int] = None
+    """Training steps per model (default: 1000 for ssnerf-lite, 20000 for ssnerf)."""
+    properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    """Properties benchmarked (each needs labels in the scenes)."""
+    all_properties_model: bool = True
+    """Also train one model on all properties (an extra row)."""
+    figure_view: int = 0
+    """Index of the test view shown in each scene's figure."""
+    quick: bool = False
+    """A few minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not
+    meaningful; the whole pipeline runs."""
+    heuristic: HeuristicBaselineConfig = field(default_factory=HeuristicBaselineConfig)
+    hybrid: HybridBaselineConfig = field(default_factory=HybridBaselineConfig)
+
+
+def quick_config(config: BenchmarkConfig) -> BenchmarkConfig:
+    """The --quick settings applied to `config`."""
+    quick = deepcopy(config)
+    quick.steps = config.steps or 30
+    quick.hybrid = HybridBaselineConfig(width=8, depth=3, steps=30, batch_size=4)
+    return quick
+
+
+def shrink_for_quick(trainer: TrainerConfig) -> None:
+    """Tiny model sizes for --quick (hash grid and decoders a few times smaller, fewer samples)."""
+    datamanager, model = trainer.pipeline.datamanager, trainer.pipeline.model  # type: ignore[attr-defined]
+    datamanager.train_num_rays_per_batch = datamanager.eval_num_rays_per_batch = 256
+    model.grid_levels, model.grid_max_res, model.grid_log2_hashmap_size, model.grid_hidden_dim = 4, 64, 14, 32
+    model.decoder_width = 32
+    model.num_proposal_samples, model.proposal_max_res, model.num_field_samples = (24,), (64,), 16
+
+
+def generated_scenes(config: BenchmarkConfig) -> List[Path]:
+    """The default scenes, seeds 0 and 1 (tiny with --quick), generated once under OUTPUT/scenes."""
+    size = dict(width=40, height=30, num_frames=10) if config.quick else {}
+    scenes = []
+    for seed in (0, 1):
+        root = config.output / "scenes" / f"seed_{seed}"
+        if not (root / "transforms.json").is_file():
+            make_scene(MakeSceneConfig(output_dir=root, seed=seed, overwrite=True, **size))  # type: ignore[arg-type]
+        scenes.append(root)
+    return scenes
+
+
+class SceneBenchmark:
+    """Everything for one scene; each step's result is a file under `folder`, reused when present."""
+
+    def __init__(self, config: BenchmarkConfig, scene: Path, name: str) -> None:
+        self.config, self.scene, self.name = config, scene, name
+        self.folder = config.output / "runs" / name
+        self.steps = config.steps or DEFAULT_STEPS[config.method]
+
+    def models(self) -> Dict[str, Tuple[str, ...]]:
+        """Run name -> properties it trains."""
+        runs: Dict[str, Tuple[str, ...]] = {NERF: ()}
+        runs.update({f"ssnerf-{name}": (name,) for name in self.config.properties})
+        if self.config.all_properties_model:
+            runs[ALL] = tuple(self.config.properties)
+        return runs
+
+    def trainer_config(self, run: str, properties: Tuple[str, ...]) -> TrainerConfig:
+        trainer = deepcopy(ssnerf_config if self.config.method == "ssnerf" else ssnerf_lite_config)
+        trainer.pipeline.datamanager.data = self.scene  # type: ignore[attr-defined]
+        trainer.pipeline.model.properties = properties  # type: ignore[attr-defined]
+        trainer.output_dir = self.folder
+        trainer.experiment_name = run
+        trainer.timestamp = "run"
+        trainer.vis = "tensorboard"
+        trainer.max_num_iterations = self.steps
+        trainer.steps_per_save = self.steps
+        trainer.steps_per_eval_image = trainer.steps_per_eval_all_images = self.steps + 1
+        trainer.steps_per_eval_batch = self.steps + 1
+        trainer.logging.local_writer.enable = False
+        if self.config.quick:
+            shrink_for_quick(trainer)
+        return trainer
+
+    def config_path(self, run: str) -> Path:
+        return self.folder / run / self.config.method / "run" / "config.yml"
+
+    def train_and_score(self, run: str, properties: Tuple[str, ...]) -> Dict[str, float]:
+        """Train one model unless its metrics exist; return its test-split metrics."""
+        result = self.folder / run / "metrics.json"
+        if result.is_file():
+            CONSOLE.print(f"[dim]{self.name}/{run}: done earlier, reusing {result}")
+            return json.loads(result.read_text())
+        trainer = self.trainer_config(run, properties)
+        checkpoint = trainer.get_checkpoint_dir() / f"step-{self.steps - 1:09d}.ckpt"
+        if not checkpoint.is_file():
+            CONSOLE.rule(f"{self.name}: training {run} ({', '.join(properties) or 'RGB only'}) for {self.steps} steps")
+            train_main(trainer)
+        _, pipeline, _, _ = eval_setup(self.config_path(run), test_mode="test")
+        metrics = pipeline.get_average_eval_image_metrics()
+        result.write_text(json.dumps(metrics, indent=2))
+        return metrics
+
+    def load(self, run: str) -> Pipeline:
+        return eval_setup(self.config_path(run), test_mode="test")[1]
+
+    def baseline(self, name: str, score: Callable[[], Dict[str, float]]) -> Dict[str, float]:
+        result = self.folder / f"{name}.json"
+        if result.is_file():
+            return json.loads(result.read_text())
+        CONSOLE.rule(f"{self.name}: {name} baseline")
+        metrics = score()
+        result.write_text(json.dumps(metrics, indent=2))
+        return metrics
+
+    def run(self) -> Dict[str, Dict[str, float]]:
+        """Every model and both baselines on this scene: name -> test-split metrics."""
+        results = {run: self.train_and_score(run, properties) for run, properties in self.models().items()}
+        nerf = self.load(NERF)
+        specs = self.baseline_specs(nerf)
+        num_classes = len(nerf.datamanager.train_dataset.metadata.get("semantic_classes", []))  # type: ignore
+        results["heuristic"] = self.baseline("heuristic", lambda: score_predictor(
+            self.heuristic(nerf, specs, num_classes).predict_view, self.test_dataset(nerf), specs, num_classes))
+        results["hybrid"] = self.baseline("hybrid", lambda: score_predictor(
+            self.hybrid(nerf, specs, num_classes).predictor(rgb_renderer(nerf)), self.test_dataset(nerf), specs,
+            num_classes))
+        self.figure(nerf, specs, num_classes)
+        return results
+
+    def baseline_specs(self, pipeline: Pipeline) -> List[PropertySpec]:
+        available = pipeline.datamanager.train_dataset.metadata.get("available_properties", ())  # type: ignore
+        return [spec for spec in resolve_properties(self.config.properties) if spec.name in available]
+
+    @staticmethod
+    def test_dataset(pipeline: Pipeline):
+        return pipeline.datamanager.eval_dataset  # type: ignore[attr-defined]
+
+    def heuristic(self, pipeline: Pipeline, specs: List[PropertySpec], num_classes: int) -> HeuristicBaseline:
+        train = pipeline.datamanager.train_dataset  # type: ignore[attr-defined]
+        return HeuristicBaseline(train, specs, num_classes, train.metadata["dataparser_scale"], self.config.heuristic)
+
+    def hybrid(self, pipeline: Pipeline, specs: List[PropertySpec], num_classes: int) -> HybridBaseline:
+        """The Hybrid baseline's annotators, trained once and kept in `hybrid_networks.pt`."""
+        train = pipeline.datamanager.train_dataset  # type: ignore[attr-defined]
+        hybrid = HybridBaseline(train, specs, num_classes, self.config.hybrid)
+        weights = self.folder / "hybrid_networks.pt"
+        if weights.is_file():
+            hybrid.networks.load_state_dict(torch.load(weights))
+        else:
+            history = hybrid.fit()
+            torch.save(hybrid.networks.state_dict(), weights)
+            for name, losses in history.items():
+                first, last = np.mean(losses[:10]), np.mean(losses[-10:])
+                CONSOLE.print(f"hybrid {name} annotator: training loss {first:.4f} -> {last:.4f}")
+        return hybrid
+
+    def figure(self, nerf: Pipeline, specs: List[PropertySpec], num_classes: int) -> Path:
+        """Fig. 3 for one test view: ground truth, SS-NeRF (each property from its own model), Heuristic, Hybrid."""
+        path = self.config.output / f"figure_{self.name}.png"
+        test = self.test_dataset(nerf)
+        index = min(self.config.figure_view, len(test) - 1)
+        item, cameras = test[index], test.cameras
+        palette = semantic_palette(num_classes, test.metadata.get("semantic_colors"))
+        rgb_spec = REGISTRY["rgb"]
+        columns = [rgb_spec, *specs]
+
+        def shown(spec: PropertySpec, prediction: torch.Tensor) -> np.ndarray:
+            return display_image(spec, spec.kind.display(prediction.cpu(), palette))
+
+        truth = {spec.name: shown(spec, spec.kind.label_as_prediction(spec.label(item, num_classes), num_classes))
+                 for spec in columns}
+        ssnerf: Dict[str, Optional[np.ndarray]] = {}
+        for spec in specs:
+            outputs = self.load(f"ssnerf-{spec.name}").model.get_outputs_for_camera(cameras[index : index + 1])
+            ssnerf[spec.name] = shown(spec, outputs[spec.prediction_key])
+        rgb = rgb_renderer(nerf)(cameras, index)
+        ssnerf["rgb"] = shown(rgb_spec, rgb)
+        heuristic = self.heuristic(nerf, specs, num_classes).predict_view(cameras, index)
+        hybrid = self.hybrid(nerf, specs, num_classes).predict_image(rgb)
+        rows = {
+            "ground truth": truth,
+            "SS-NeRF": ssnerf,
+            "Heuristic": {spec.name: shown(spec, heuristic[spec.name]) for spec in specs},
+            "Hybrid": {"rgb": shown(rgb_spec, rgb), **{spec.name: shown(spec, hybrid[spec.name]) for spec in specs}},
+        }
+        property_grid(path, columns, rows, f"{self.name}, test view {index} (RGB: NeRF render)")
+        return path
+
+
+def rgb_renderer(pipeline: Pipeline) -> Callable[[object, int], torch.Tensor]:
+    """Render RGB for camera `index` of a `Cameras` with a trained pipeline (CPU tensor, H x W x 3)."""
+
+    def render(cameras, index: int) -> torch.Tensor:
+        with torch.no_grad():
+            return pipeline.model.get_outputs_for_camera(cameras[index : index + 1])["rgb"].cpu()
+
+    return render
+
+
+def run(config: BenchmarkConfig) -> Dict[str, Dict[str, Dict[str, float]]]:
+    """The whole benchmark; returns scene -> row -> metrics and writes the report."""
+    start = time.time()
+    if config.quick:
+        config = quick_config(config)
+    config.output.mkdir(parents=True, exist_ok=True)
+    scenes = list(config.scenes) or generated_scenes(config)
+    plain = [scene.name for scene in scenes]
+    names = [scene.name if plain.count(scene.name) == 1 else f"{scene.parent.name}_{scene.name}" for scene in scenes]
+    results = {}
+    for scene, name in zip(scenes, names):
+        results[name] = SceneBenchmark(config, scene, name).run()
+    report = write_report(config.output, results, list(config.properties), config.method,
+                          config.steps or DEFAULT_STEPS[config.method])
+    CONSOLE.print(report.read_text())
+    CONSOLE.print(f"Benchmark done in {(time.time() - start) / 60:.1f} min: {report}")
+    return results
+
+
+def entrypoint() -> None:
+    """Console script `ssnerf-benchmark`."""
+    run(tyro.cli(BenchmarkConfig))
+
+
+if __name__ == "__main__":
+    entrypoint()

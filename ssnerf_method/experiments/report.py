@@ -1,0 +1,109 @@
+"""The benchmark's report: the paper's Table 1 and Table 2-left as Markdown and JSON, from per-scene results."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Dict, List, Optional, Sequence, Tuple
+
+from ssnerf_method.properties import REGISTRY
+
+HEADLINE = {"miou": ("miou", True), "normal": ("l1", False), "l1": ("l1", False)}
+"""Per registry metric: the Table 1 number (the paper's) and whether higher is better."""
+
+Results = Dict[str, Dict[str, Dict[str, float]]]
+"""scene -> row (run name, "heuristic", "hybrid") -> metric name -> value."""
+
+
+def headline(name: str) -> Tuple[str, bool]:
+    """Metric name of a property's Table 1 number (`semantics_miou`, `normals_l1`, ...) and if higher is better."""
+    spec = REGISTRY[name]
+    key, higher = HEADLINE[spec.metric]
+    return spec.metric_prefix + key, higher
+
+
+def _mean(values: Sequence[Optional[float]]) -> Optional[float]:
+    kept = [value for value in values if value is not None and not math.isnan(value)]
+    return sum(kept) / len(kept) if kept else None
+
+
+def table1(results: Results, properties: Sequence[str]) -> List[Dict]:
+    """Rows of Table 1: SS-NeRF per scene (property X from the model trained on X), their average, the all-properties
+    model's average (when trained) and each baseline's average."""
+    rows = []
+    for scene, runs in results.items():
+        rows.append({"row": f"SS-NeRF ({scene})", **{
+            name: runs.get(f"ssnerf-{name}", {}).get(headline(name)[0]) for name in properties}})
+    rows.append({"row": "SS-NeRF, average", **{name: _mean([row[name] for row in rows]) for name in properties}})
+    for label, run in (("SS-NeRF, one model for all properties, average", "ssnerf-all"),
+                       ("Heuristic, average", "heuristic"), ("Hybrid, average", "hybrid")):
+        if any(run in runs for runs in results.values()):
+            rows.append({"row": label, **{name: _mean([runs.get(run, {}).get(headline(name)[0])
+                                                       for runs in results.values()]) for name in properties}})
+    return rows
+
+
+def table2(results: Results, properties: Sequence[str]) -> List[Dict]:
+    """Rows of Table 2-left: RGB PSNR of the NeRF and of each single-property SS-NeRF, per scene and averaged."""
+    columns = ["nerf", *(f"ssnerf-{name}" for name in properties)]
+    rows = [{"row": scene, **{column: runs.get(column, {}).get("psnr") for column in columns}}
+            for scene, runs in results.items()]
+    rows.append({"row": "average", **{column: _mean([row[column] for row in rows]) for column in columns}})
+    return rows
+
+
+def _cell(value: Optional[float], digits: int) -> str:
+    return "–" if value is None or math.isnan(value) else f"{value:.{digits}f}"
+
+
+def markdown(rows: List[Dict], columns: Sequence[str], titles: Sequence[str], digits: int) -> str:
+    lines = ["| | " + " | ".join(titles) + " |", "|---|" + "---|" * len(titles)]
+    lines += ["| " + row["row"] + " | " + " | ".join(_cell(row[column], digits) for column in columns) + " |"
+              for row in rows]
+    return "\n".join(lines)
+
+
+def beats(rows: List[Dict], properties: Sequence[str], baseline: str) -> Dict[str, bool]:
+    """Per property: does SS-NeRF's average beat the baseline's average?"""
+    ours = next(row for row in rows if row["row"] == "SS-NeRF, average")
+    theirs = next((row for row in rows if row["row"] == f"{baseline}, average"), None)
+    result = {}
+    for name in properties:
+        if theirs is None or ours[name] is None or theirs[name] is None:
+            continue
+        higher = headline(name)[1]
+        result[name] = ours[name] > theirs[name] if higher else ours[name] < theirs[name]
+    return result
+
+
+def write_report(output: Path, results: Results, properties: Sequence[str], method: str, steps: int) -> Path:
+    """Write `report.md` and `tables.json` into `output`; returns the report's path."""
+    first = table1(results, properties)
+    second = table2(results, properties)
+    titles = [f"{REGISTRY[name].short} {headline(name)[0].split('_', 1)[1]} {'↑' if headline(name)[1] else '↓'}"
+              for name in properties]
+    verdicts = {baseline: beats(first, properties, baseline) for baseline in ("Heuristic", "Hybrid")}
+    summary = "; ".join(
+        f"beats {baseline} on {sum(won.values())}/{len(won)}"
+        + (f" (not on {', '.join(name for name, ok in won.items() if not ok)})" if not all(won.values()) else "")
+        for baseline, won in verdicts.items() if won
+    )
+    report = "\n\n".join([
+        f"# SS-NeRF benchmark ({method}, {steps} steps per model)",
+        f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them "
+        "(mIoU from the accumulated confusion matrix, L1 over all labelled pixels).",
+        "## Table 1: scene properties",
+        markdown(first, list(properties), titles, 4),
+        f"SS-NeRF (average) {summary}." if summary else "",
+        "## Table 2 (left): RGB PSNR of NeRF and of each single-property SS-NeRF",
+        markdown(second, ["nerf", *(f"ssnerf-{name}" for name in properties)],
+                 ["NeRF", *(f"SS-NeRF-{REGISTRY[name].short}" for name in properties)], 2),
+        "Figures: " + ", ".join(f"`figure_{scene}.png`" for scene in results),
+    ])
+    path = output / "report.md"
+    path.write_text(report + "\n")
+    tables = {"method": method, "steps": steps, "table1": first, "table2_left": second,
+              "beats": verdicts, "results": results}
+    (output / "tables.json").write_text(json.dumps(tables, indent=2))
+    return path
