@@ -131,7 +131,6 @@ class SceneBenchmark:
         trainer.steps_per_save = self.steps
         trainer.steps_per_eval_image = trainer.steps_per_eval_all_images = self.steps + 1
         trainer.steps_per_eval_batch = self.steps + 1
-        trainer.logging.local_writer.enable = False
         if self.config.quick:
             shrink_for_quick(trainer)
         return trainer
@@ -169,7 +168,11 @@ class SceneBenchmark:
 
     def run(self) -> Dict[str, Dict[str, float]]:
         """Every model and both baselines on this scene: name -> test-split metrics."""
-        results = {run: self.train_and_score(run, properties) for run, properties in self.models().items()}
+        models = self.models()
+        results = {}
+        for number, (run, properties) in enumerate(models.items(), start=1):
+            CONSOLE.print(f"[bold]{self.name}: model {number}/{len(models)}: {run}")
+            results[run] = self.train_and_score(run, properties)
         nerf = self.load(NERF)
         specs = self.baseline_specs(nerf)
         num_classes = len(nerf.datamanager.train_dataset.metadata.get("semantic_classes", []))  # type: ignore

@@ -1,0 +1,71 @@
+"""`ssnerf-benchmark`: its tables from hand-made results, and `--quick` end to end (two tiny generated scenes), then
+resumed without retraining anything."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from PIL import Image
+
+from ssnerf_method.evaluation.hybrid import HybridBaseline
+from ssnerf_method.experiments import benchmark
+from ssnerf_method.experiments.benchmark import BenchmarkConfig, run
+from ssnerf_method.experiments.report import beats, table1, table2
+
+PROPERTIES = ("semantics", "normals", "shading", "keypoints", "edges")
+
+
+def test_tables_average_scenes_and_judge_each_metric_the_right_way() -> None:
+    results = {
+        "a": {"nerf": {"psnr": 20.0}, "ssnerf-semantics": {"psnr": 21.0, "semantics_miou": 0.8},
+              "ssnerf-normals": {"psnr": 19.0, "normals_l1": 0.02},
+              "heuristic": {"semantics_miou": 0.7, "normals_l1": 0.03}},
+        "b": {"nerf": {"psnr": 22.0}, "ssnerf-semantics": {"psnr": 23.0, "semantics_miou": 0.6},
+              "ssnerf-normals": {"psnr": 25.0, "normals_l1": 0.04},
+              "heuristic": {"semantics_miou": 0.75, "normals_l1": 0.02}},
+    }
+    rows = table1(results, ("semantics", "normals"))
+    assert [row["row"] for row in rows] == ["SS-NeRF (a)", "SS-NeRF (b)", "SS-NeRF, average", "Heuristic, average"]
+    assert rows[2]["semantics"] == pytest.approx(0.7) and rows[2]["normals"] == pytest.approx(0.03)
+    assert rows[3]["semantics"] == pytest.approx(0.725) and rows[3]["normals"] == pytest.approx(0.025)
+    # mIoU: higher is better (0.7 < 0.725: loses); L1: lower is better (0.03 > 0.025: loses)
+    assert beats(rows, ("semantics", "normals"), "Heuristic") == {"semantics": False, "normals": False}
+    psnr = table2(results, ("semantics", "normals"))
+    assert psnr[-1] == {"row": "average", "nerf": 21.0, "ssnerf-semantics": 22.0, "ssnerf-normals": 22.0}
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_quick_benchmark_end_to_end_then_resumes(tmp_path: Path, monkeypatch) -> None:
+    torch.set_num_threads(1)
+    output = tmp_path / "report"
+    results = run(BenchmarkConfig(quick=True, output=output))
+    assert set(results) == {"seed_0", "seed_1"}
+    expected_rows = {"nerf", *(f"ssnerf-{name}" for name in PROPERTIES), "ssnerf-all", "heuristic", "hybrid"}
+    for rows in results.values():
+        assert set(rows) == expected_rows
+        assert set(rows["nerf"]) >= {"psnr", "ssim"} and "semantics_miou" not in rows["nerf"]
+        assert {"psnr", "semantics_miou", "semantics_acc"} <= set(rows["ssnerf-semantics"])
+        assert "normals_l1" not in rows["ssnerf-semantics"]  # one property per model
+        assert {"semantics_miou", "normals_l1", "edges_l1"} <= set(rows["heuristic"]) and "psnr" not in rows["hybrid"]
+
+    report = (output / "report.md").read_text()
+    assert "## Table 1" in report and "| Heuristic, average |" in report and "| Hybrid, average |" in report
+    assert "SS-NeRF-SL" in report
+    tables = json.loads((output / "tables.json").read_text())
+    assert [row["row"] for row in tables["table1"]][-4:] == [
+        "SS-NeRF, average", "SS-NeRF, one model for all properties, average", "Heuristic, average", "Hybrid, average"]
+    assert all(np.isfinite(value) for row in tables["table1"] for key, value in row.items() if key != "row")
+    for scene in results:
+        figure = np.asarray(Image.open(output / f"figure_{scene}.png"))
+        assert figure.shape[0] > 400 and figure.shape[1] > 800 and figure.std() > 10  # a real picture, not blank
+
+    def refuse(*args, **kwargs):
+        raise AssertionError("a finished step was redone")
+
+    monkeypatch.setattr(benchmark, "train_main", refuse)
+    monkeypatch.setattr(HybridBaseline, "fit", refuse)
+    assert run(BenchmarkConfig(quick=True, output=output)) == results
