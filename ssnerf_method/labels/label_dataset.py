@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import threading
 from collections import Counter
+from copy import deepcopy
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -27,6 +28,8 @@ from typing import Callable, Dict, List, Optional, Tuple
 import cv2
 import numpy as np
 import tyro
+
+from nerfstudio.cameras.cameras import Cameras
 
 from ssnerf_method.data.io import DatasetInputError, Staging, backup_once, image_size, read_image, write_json_atomic
 from ssnerf_method.data.transforms import Transforms, camera_key, camera_rays, frame_camera, is_perspective
@@ -298,14 +301,15 @@ class RayCache:
         self._rays: Dict[Tuple, np.ndarray] = {}
         self._lock = threading.Lock()
 
-    def get(self, transforms: Transforms, frame: Dict, scale: float) -> np.ndarray:
-        camera = frame_camera(transforms, frame)
+    def get(self, camera: Cameras, scale: float) -> np.ndarray:
+        """Rays of `camera` with its resolution scaled by `scale` (the camera itself is left unchanged)."""
         key = (camera_key(camera), round(scale, 6))
         with self._lock:
             if key not in self._rays:
+                scaled = deepcopy(camera)
                 if scale != 1.0:
-                    camera.rescale_output_resolution(scale)
-                self._rays[key] = camera_rays(camera)
+                    scaled.rescale_output_resolution(scale)
+                self._rays[key] = camera_rays(scaled)
             return self._rays[key]
 
 
@@ -321,9 +325,9 @@ def label_frame(
     rgb = rgb[..., :3] if rgb.ndim == 3 else np.repeat(rgb[..., None], 3, axis=-1)
     if rgb.dtype != np.uint8:
         rgb = (rgb / 257.0).round().astype(np.uint8)
+    camera = frame_camera(transforms, frame)
     context = FrameContext(
-        transforms, frame, config, rgb, lambda scale: rays.get(transforms, frame, scale),
-        is_perspective(frame_camera(transforms, frame)),
+        transforms, frame, config, rgb, lambda scale: rays.get(camera, scale), is_perspective(camera),
     )
     keys, outcomes = {}, {}
     for name, (labeller, use_given) in LABELLERS.items():
