@@ -69,3 +69,18 @@ def test_quick_benchmark_end_to_end_then_resumes(tmp_path: Path, monkeypatch) ->
     monkeypatch.setattr(benchmark, "train_main", refuse)
     monkeypatch.setattr(HybridBaseline, "fit", refuse)
     assert run(BenchmarkConfig(quick=True, output=output)) == results
+
+
+def test_rendered_depth_is_z_depth() -> None:
+    """The Heuristic's fallback depth divides the rendered ray distance by the camera-frame ray length."""
+
+    class Model:
+        def get_outputs_for_camera(self, cameras):
+            norm = torch.tensor([1.0, 2.0 ** 0.5, 3.0 ** 0.5]).reshape(1, 3, 1)
+            return {"depth": 2.0 * norm, "directions_norm": norm}
+
+    class Pipeline:
+        model = Model()
+
+    depth = benchmark.rendered_depth(Pipeline(), [None, None])(1)  # type: ignore[arg-type]
+    assert depth.shape == (1, 3) and np.allclose(depth, 2.0)

@@ -137,3 +137,25 @@ def test_scores_a_generated_scene(tmp_path) -> None:
     assert "psnr" not in scores  # the baseline predicts properties, not RGB
     assert scores["semantics_acc"] > 0.6 and scores["normals_angle_median_deg"] < 20
     assert all(np.isfinite(value) for value in scores.values())
+
+
+def test_warp_uses_the_given_depth_source_and_a_dataset_without_depth_is_named(tmp_path) -> None:
+    root = tmp_path / "scene"
+    make_scene(MakeSceneConfig(output_dir=root, width=32, height=24, num_frames=10))
+    parser = SSNeRFDataParserConfig(data=root).setup()
+    train = SSNeRFDataset(parser.get_dataparser_outputs("train"))
+    test = SSNeRFDataset(parser.get_dataparser_outputs("test"))
+    specs = [REGISTRY["semantics"]]
+    num_classes = len(train.metadata["semantic_classes"])
+    scale = train.metadata["dataparser_scale"]
+    default = HeuristicBaseline(train, specs, num_classes, scale)
+    same = HeuristicBaseline(train, specs, num_classes, scale, depth=default.depth)
+    far = HeuristicBaseline(train, specs, num_classes, scale, depth=lambda index: 3.0 * default.depth(index))
+    target = PinholeView.from_cameras(test.cameras, 0)
+    truth = default.predict(target)["semantics"]
+    assert torch.equal(same.predict(target)["semantics"], truth)
+    assert not torch.equal(far.predict(target)["semantics"], truth)  # the warp follows the depth it is given
+
+    train.depth_files = None  # as the paper's released data: labels, no depth maps
+    with pytest.raises(ValueError, match="depth_file_path"):
+        HeuristicBaseline(train, specs, num_classes, scale).predict(target)

@@ -5,12 +5,16 @@ to 3D with its depth map, moved into the test camera and splatted with a z-buffe
 pixel containing its projection; the closest point wins). Test pixels still empty are filled from the next-nearest
 views in turn, then from the nearest filled pixel. Labels that are vectors in the camera frame (normals) are rotated
 into the test camera (`PropertyKind.reframe`); class ids are copied, never blended.
+
+The depth of a training view comes from a `DepthSource`: the dataset's depth maps (`dataset_depth`) when it has them,
+or any other estimate, such as the depth an RGB NeRF renders there (what `ssnerf-benchmark` uses by default, since it
+needs no more input than SS-NeRF gets).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Dict, List, Optional, Sequence, Tuple
+from typing import Callable, Dict, List, Optional, Sequence, Tuple
 
 import numpy as np
 import torch
@@ -98,6 +102,25 @@ def nearest_filled(filled: np.ndarray) -> np.ndarray:
     return rows * filled.shape[1] + cols
 
 
+DepthSource = Callable[[int], Float[np.ndarray, "h w"]]
+"""Training-view index -> its z-depth map in world (dataparser) units; NaN or <= 0 where unknown."""
+
+
+def dataset_depth(train: SSNeRFDataset, dataparser_scale: float) -> DepthSource:
+    """The training views' own depth maps (metres on disk), in world units."""
+
+    def depth(index: int) -> np.ndarray:
+        item = train[index]
+        if DEPTH_KEY not in item:
+            raise ValueError(
+                "the Heuristic baseline's dataset depth needs depth maps (frames' `depth_file_path` in "
+                "transforms.json); without them, give it another depth source, e.g. a NeRF's rendered depth"
+            )
+        return item[DEPTH_KEY][..., 0].numpy().astype(np.float64) * dataparser_scale
+
+    return depth
+
+
 @dataclass
 class HeuristicBaselineConfig:
     """The Heuristic baseline's choices."""
@@ -109,19 +132,27 @@ class HeuristicBaselineConfig:
 
 
 class HeuristicBaseline:
-    """Labels of test views forward-projected from the training views' labels and depth maps."""
+    """Labels of test views forward-projected from the training views' labels with their depth (`depth`; default: the
+    dataset's depth maps)."""
 
     def __init__(
         self, train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, dataparser_scale: float,
-        config: Optional[HeuristicBaselineConfig] = None,
+        config: Optional[HeuristicBaselineConfig] = None, depth: Optional[DepthSource] = None,
     ) -> None:
         self.train = train
         self.specs = [spec for spec in specs if spec.file_key is not None]
         self.num_classes = num_classes
-        self.scale = dataparser_scale
         self.config = config or HeuristicBaselineConfig()
+        self.depth_source = depth or dataset_depth(train, dataparser_scale)
         self.views = [PinholeView.from_cameras(train.cameras, index) for index in range(len(train))]
         self._items: Dict[int, Dict[str, Tensor]] = {}
+        self._depths: Dict[int, np.ndarray] = {}
+
+    def depth(self, index: int) -> np.ndarray:
+        """A training view's z-depth in world units (asked of the depth source once)."""
+        if index not in self._depths:
+            self._depths[index] = self.depth_source(index)
+        return self._depths[index]
 
     def item(self, index: int) -> Dict[str, Tensor]:
         """A training view's image, labels and depth (read once)."""
@@ -144,11 +175,7 @@ class HeuristicBaseline:
         winner_view = np.full(size, -1)
         winner_pixel = np.zeros(size, dtype=np.int64)
         for source_index in self.source_order(target)[: self.config.num_source_views]:
-            item = self.item(int(source_index))
-            if DEPTH_KEY not in item:
-                raise ValueError("the Heuristic baseline warps labels with depth; the training views have none")
-            depth = item[DEPTH_KEY][..., 0].numpy().astype(np.float64) * self.scale
-            hit, pixel, _ = splat(self.views[source_index], depth, target)
+            hit, pixel, _ = splat(self.views[source_index], self.depth(int(source_index)), target)
             empty = winner_view[hit] < 0
             winner_view[hit[empty]], winner_pixel[hit[empty]] = source_index, pixel[empty]
         filled = (winner_view >= 0).reshape(target.height, target.width)

@@ -31,7 +31,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.evaluation.figures import display_image, property_grid
-from ssnerf_method.evaluation.heuristic import HeuristicBaseline, HeuristicBaselineConfig
+from ssnerf_method.evaluation.heuristic import DepthSource, HeuristicBaseline, HeuristicBaselineConfig
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments.report import write_report
@@ -193,8 +193,11 @@ class SceneBenchmark:
         return pipeline.datamanager.eval_dataset  # type: ignore[attr-defined]
 
     def heuristic(self, pipeline: Pipeline, specs: List[PropertySpec], num_classes: int) -> HeuristicBaseline:
+        """The Heuristic baseline with the dataset's depth maps, or the RGB NeRF's rendered depth where it has none."""
         train = pipeline.datamanager.train_dataset  # type: ignore[attr-defined]
-        return HeuristicBaseline(train, specs, num_classes, train.metadata["dataparser_scale"], self.config.heuristic)
+        depth = None if train.depth_files is not None else rendered_depth(pipeline, train.cameras)
+        return HeuristicBaseline(train, specs, num_classes, train.metadata["dataparser_scale"], self.config.heuristic,
+                                 depth)
 
     def hybrid(self, pipeline: Pipeline, specs: List[PropertySpec], num_classes: int) -> HybridBaseline:
         """The Hybrid baseline's annotators, trained once and kept in `hybrid_networks.pt`."""
@@ -252,6 +255,19 @@ def rgb_renderer(pipeline: Pipeline) -> Callable[[object, int], torch.Tensor]:
             return pipeline.model.get_outputs_for_camera(cameras[index : index + 1])["rgb"].cpu()
 
     return render
+
+
+def rendered_depth(pipeline: Pipeline, cameras) -> DepthSource:
+    """A trained pipeline's z-depth (world units) at camera `index` of `cameras`: the Heuristic's depth when the
+    dataset has no depth maps (the paper's released data has none)."""
+
+    def depth(index: int) -> np.ndarray:
+        with torch.no_grad():
+            outputs = pipeline.model.get_outputs_for_camera(cameras[index : index + 1])
+        # rendered depth is the distance along the unit ray; z-depth divides by the camera-frame ray's length
+        return (outputs["depth"] / outputs["directions_norm"])[..., 0].cpu().numpy().astype(np.float64)
+
+    return depth
 
 
 def run(config: BenchmarkConfig) -> Dict[str, Dict[str, Dict[str, float]]]:
