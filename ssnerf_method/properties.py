@@ -21,6 +21,7 @@ from PIL import Image
 from torch import Tensor
 
 from nerfstudio.model_components.renderers import NormalsRenderer, RGBRenderer, SemanticRenderer
+from nerfstudio.utils import colormaps
 
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
@@ -230,7 +231,12 @@ class NormalKind(PropertyKind):
 
 
 class ScalarKind(PropertyKind):
-    """A one-channel map in [0, 1] (shading, keypoint heatmap, edges) stored as an 8-bit grey PNG, value/255."""
+    """A one-channel map in [0, 1] (shading, keypoint heatmap, edges) stored as an 8-bit grey PNG, value/255.
+
+    The rendered value lives under `<name>_value`; the output named after the property is its colour-mapped image.
+    """
+
+    prediction_suffix = "_value"
 
     def __init__(self, activation: Literal["sigmoid", "relu"]) -> None:
         self.activation_name = activation
@@ -271,12 +277,23 @@ class PropertySpec:
     metric: Literal["psnr", "miou", "l1", "normal"]
     """Evaluation metric, implemented in `ssnerf_method/evaluation/metrics.py`."""
     colormap: str
-    """Display colour mapping: "default" for images already in colour, else a nerfstudio colormap name."""
+    """Display colour mapping of a one-channel map (a nerfstudio colormap name); "default" for images in colour."""
 
     @property
     def prediction_key(self) -> str:
         """Model output compared with the label (the display image lives under `name`)."""
         return self.name + self.kind.prediction_suffix
+
+    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Float[Tensor, "*bs 3"]:
+        """The image people see (viewer, `ns-render`, figures): the kind's display, and for a one-channel map its
+        values in the fixed range [0, 1] through `colormap` (never normalised per frame, so frames compare)."""
+        shown = self.kind.display(prediction, palette)
+        if shown.shape[-1] != 1:
+            return shown
+        values = torch.nan_to_num(shown, nan=0.0).clamp(0.0, 1.0)
+        if self.colormap == "gray":  # nerfstudio's grey path assumes (H, W, 1); rays come as (N, 1)
+            return values.expand(*values.shape[:-1], 3)
+        return colormaps.apply_float_colormap(values, colormap=self.colormap)  # type: ignore[arg-type]
 
     @property
     def label_key(self) -> str:

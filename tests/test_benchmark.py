@@ -75,7 +75,7 @@ def test_rendered_depth_is_z_depth() -> None:
     """The Heuristic's fallback depth divides the rendered ray distance by the camera-frame ray length."""
 
     class Model:
-        def get_outputs_for_camera(self, cameras):
+        def render_camera(self, cameras):
             norm = torch.tensor([1.0, 2.0 ** 0.5, 3.0 ** 0.5]).reshape(1, 3, 1)
             return {"depth": 2.0 * norm, "directions_norm": norm}
 

@@ -309,6 +309,6 @@ def test_model_trains_only_available_properties_with_overrides() -> None:
         outputs = model(bundle)
     assert outputs["semantics_logits"].shape == (NUM_RAYS, 3)
     assert outputs["semantics"].shape == (NUM_RAYS, 3)
-    assert outputs["edges"].shape == (NUM_RAYS, 1)
+    assert outputs["edges_value"].shape == (NUM_RAYS, 1) and outputs["edges"].shape == (NUM_RAYS, 3)
     assert "normals" not in outputs and "shading" not in outputs
-    assert outputs["level0_edges"].shape == (NUM_RAYS, 1)
+    assert outputs["level0_edges_value"].shape == (NUM_RAYS, 1)

@@ -188,7 +188,8 @@ def test_model_renders_semantic_logits_then_softmax_and_cross_entropy() -> None:
     # display: palette colour of the argmax of the rendered logits (class 1), not of rendered probabilities (0)
     assert not torch.allclose(model.palette[0], model.palette[1])
     assert torch.allclose(rendered["semantics"], model.palette[1][None])
-    assert torch.allclose(rendered["shading"], torch.tensor([[0.48]]))
+    assert torch.allclose(rendered["shading_value"], torch.tensor([[0.48]]))
+    assert torch.allclose(rendered["shading"], torch.tensor([[0.48, 0.48, 0.48]]))  # grey, range fixed to [0, 1]
     # world normal +x faces this camera: camera frame (0, 0, 1) -> encoding (0.5, 0.5, 1)
     assert torch.allclose(rendered["normals"], torch.tensor([[0.5, 0.5, 1.0]]), atol=1e-6)
 

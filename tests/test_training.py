@@ -21,8 +21,12 @@ from ssnerf_method.properties import OPTIONAL_PROPERTIES
 from conftest import CLASSES, HEIGHT, WIDTH, write_tiny_dataset
 
 EXPECTED_OUTPUTS = {
-    "rgb": 3, "semantics": 3, "semantics_logits": len(CLASSES), "normals": 3, "shading": 1, "keypoints": 1, "edges": 1,
+    "rgb": 3, "semantics": 3, "semantics_logits": len(CLASSES), "normals": 3, "shading": 3, "shading_value": 1,
+    "keypoints": 3, "keypoints_value": 1, "edges": 3, "edges_value": 1,
 }
+"""`render_camera`'s outputs (predictions and display images) and their channels."""
+DISPLAY_OUTPUTS = {"rgb", "semantics", "normals", "shading", "keypoints", "edges", "depth", "accumulation"}
+"""What the viewer lists and `ns-render` can write: nothing internal."""
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -154,10 +158,16 @@ def test_lite_checkpoint_round_trip(lite_run) -> None:
     dataset = pipeline.datamanager.eval_dataset
     assert [Path(p).name for p in dataset.image_filenames] == ["frame_000.png"]
     camera = dataset.cameras[0:1]
-    outputs = pipeline.model.get_outputs_for_camera(camera)
+    outputs = pipeline.model.render_camera(camera)
     for name, channels in EXPECTED_OUTPUTS.items():
         assert outputs[name].shape == (HEIGHT, WIDTH, channels), name
         assert torch.isfinite(outputs[name]).all(), name
+    shown = pipeline.model.get_outputs_for_camera(camera)  # the viewer's and ns-render's call
+    assert set(shown) == DISPLAY_OUTPUTS
+    for name in DISPLAY_OUTPUTS - {"depth", "accumulation"}:
+        assert shown[name].shape == (HEIGHT, WIDTH, 3) and torch.equal(shown[name], outputs[name]), name
+    # scalar maps are shown in the fixed range [0, 1] (grey): a value of v is the colour (v, v, v)
+    assert torch.allclose(shown["shading"], outputs["shading_value"].clamp(0, 1).expand(-1, -1, 3))
     # the loaded weights are the trained ones: the test view's colour is learnt, not the init's grey
     image = dataset[0]["image"]
     assert torch.mean((outputs["rgb"] - image) ** 2) < 0.03
@@ -192,7 +202,7 @@ def test_hierarchical_pose_normals_runs_on_cpu(tmp_path: Path) -> None:
         assert set(loss_dict) == expected
     pipeline = trainer.pipeline
     pipeline.eval()
-    outputs = pipeline.model.get_outputs_for_camera(pipeline.datamanager.eval_dataset.cameras[0:1])
+    outputs = pipeline.model.render_camera(pipeline.datamanager.eval_dataset.cameras[0:1])
     for name, channels in EXPECTED_OUTPUTS.items():
         assert outputs[name].shape == (HEIGHT, WIDTH, channels), name
     assert ((outputs["normals"] >= 0) & (outputs["normals"] <= 1)).all()

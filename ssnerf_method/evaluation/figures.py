@@ -1,4 +1,4 @@
-"""Property images for people: display colours per the registry, and the paper's Fig. 3 grid (rows of methods,
+"""Property images for people: display images as 8-bit RGB, and the paper's Fig. 3 grid (rows of methods,
 columns of properties) for one test view."""
 
 from __future__ import annotations
@@ -9,16 +9,11 @@ from typing import Dict, List, Optional, Sequence
 import numpy as np
 import torch
 
-from nerfstudio.utils import colormaps
-
 from ssnerf_method.properties import PropertySpec
 
 
-def display_image(spec: PropertySpec, image: torch.Tensor) -> np.ndarray:
-    """A display image (3 colour channels, or one channel in [0, 1]) as 8-bit RGB, colour-mapped per the registry."""
-    if image.shape[-1] != 3:
-        options = colormaps.ColormapOptions(colormap=spec.colormap, colormap_min=0.0, colormap_max=1.0)  # type: ignore
-        image = colormaps.apply_colormap(image, options)
+def display_image(image: torch.Tensor) -> np.ndarray:
+    """A display image (`PropertySpec.display`: colours in [0, 1]) as 8-bit RGB."""
     return (image.clamp(0, 1).cpu().numpy() * 255).round().astype(np.uint8)
 
 

@@ -1,5 +1,8 @@
 """The SS-NeRF pipeline: nerfstudio's `VanillaPipeline` with split-level evaluation for `ns-eval`.
 
+Evaluation renders with `SSNeRFModel.render_camera` (every output, predictions included); nerfstudio's own calls of
+`get_outputs_for_camera` (viewer, `ns-render`) get only the display images.
+
 nerfstudio averages each metric over the evaluated views. For the property metrics that is not what the paper
 reports: mIoU comes from the confusion matrix accumulated over the split, and the errors are averaged over all
 labelled pixels (a view without a label for a property must not make the split's value NaN). So this pipeline sums
@@ -37,6 +40,16 @@ class SSNeRFPipeline(VanillaPipeline):
     config: SSNeRFPipelineConfig
 
     @torch.no_grad()
+    def get_eval_image_metrics_and_images(self, step: int):
+        """One eval view's metrics and images during training (the model's full outputs, not the display ones)."""
+        self.eval()
+        camera, batch = self.datamanager.next_eval_image(step)
+        metrics, images = self.model.get_image_metrics_and_images(self.model.render_camera(camera), batch)
+        metrics["num_rays"] = (camera.height * camera.width * camera.size).item()
+        self.train()
+        return metrics, images
+
+    @torch.no_grad()
     def get_average_image_metrics(
         self,
         data_loader,
@@ -58,7 +71,7 @@ class SSNeRFPipeline(VanillaPipeline):
             task = progress.add_task("[green]Evaluating all images...", total=len(data_loader))
             for index, (camera, batch) in enumerate(data_loader):
                 start = time()
-                outputs = model.get_outputs_for_camera(camera=camera)
+                outputs = model.render_camera(camera)
                 statistics = model.get_image_statistics(outputs, batch)
                 seconds = time() - start
                 for name, values in statistics.items():

@@ -225,13 +225,13 @@ class SceneBenchmark:
         columns = [rgb_spec, *specs]
 
         def shown(spec: PropertySpec, prediction: torch.Tensor) -> np.ndarray:
-            return display_image(spec, spec.kind.display(prediction.cpu(), palette))
+            return display_image(spec.display(prediction.cpu(), palette))
 
         truth = {spec.name: shown(spec, spec.kind.label_as_prediction(spec.label(item, num_classes), num_classes))
                  for spec in columns}
         ssnerf: Dict[str, Optional[np.ndarray]] = {}
         for spec in specs:
-            outputs = self.load(f"ssnerf-{spec.name}").model.get_outputs_for_camera(cameras[index : index + 1])
+            outputs = self.load(f"ssnerf-{spec.name}").model.render_camera(cameras[index : index + 1])
             ssnerf[spec.name] = shown(spec, outputs[spec.prediction_key])
         rgb = rgb_renderer(nerf)(cameras, index)
         ssnerf["rgb"] = shown(rgb_spec, rgb)
@@ -252,7 +252,7 @@ def rgb_renderer(pipeline: Pipeline) -> Callable[[object, int], torch.Tensor]:
 
     def render(cameras, index: int) -> torch.Tensor:
         with torch.no_grad():
-            return pipeline.model.get_outputs_for_camera(cameras[index : index + 1])["rgb"].cpu()
+            return pipeline.model.render_camera(cameras[index : index + 1])["rgb"].cpu()
 
     return render
 
@@ -263,7 +263,7 @@ def rendered_depth(pipeline: Pipeline, cameras) -> DepthSource:
 
     def depth(index: int) -> np.ndarray:
         with torch.no_grad():
-            outputs = pipeline.model.get_outputs_for_camera(cameras[index : index + 1])
+            outputs = pipeline.model.render_camera(cameras[index : index + 1])
         # rendered depth is the distance along the unit ray; z-depth divides by the camera-frame ray's length
         return (outputs["depth"] / outputs["directions_norm"])[..., 0].cpu().numpy().astype(np.float64)
 

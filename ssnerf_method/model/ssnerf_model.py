@@ -32,12 +32,14 @@ from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
     Branch,
+    ClassKind,
     LossName,
     PropertySpec,
     RenderContext,
     resolve_properties,
 )
 from ssnerf_method.rendering.palette import semantic_palette
+from ssnerf_method.viewer.semantic_panel import SemanticViewerPanel, highlight_class
 from ssnerf_method.rendering.sampling import (
     HierarchicalSampling,
     ProposalSampling,
@@ -139,6 +141,9 @@ class SSNeRFModel(Model):
         # world units per metre (the dataparser rescales poses); depth metrics are reported in metres
         self.dataparser_scale = float(metadata.get("dataparser_scale", 1.0))
         self.register_buffer("palette", semantic_palette(self.num_classes, metadata.get("semantic_colors")))
+        # the viewer's legend and class picker, when the model renders classes
+        self.class_spec = next((spec for spec in self.specs if isinstance(spec.kind, ClassKind)), None)
+        self.semantic_classes = None if self.class_spec is None else SemanticViewerPanel(self.class_names, self.palette)
 
         self.sampling: RaySampling = self._build_sampling()
         self.collider = NearFarCollider(near_plane=self.config.near_plane, far_plane=self.config.far_plane)
@@ -211,7 +216,12 @@ class SSNeRFModel(Model):
         final = result.levels[-1]
         for spec in self.specs:
             if spec.prediction_key != spec.name:
-                outputs[spec.name] = spec.kind.display(outputs[spec.prediction_key], self.palette)
+                outputs[spec.name] = spec.display(outputs[spec.prediction_key], self.palette)
+        shown = None if self.semantic_classes is None else self.semantic_classes.highlighted_class
+        if self.class_spec is not None and shown is not None:
+            outputs[self.class_spec.name] = highlight_class(
+                outputs[self.class_spec.prediction_key], outputs[self.rgb_spec.prediction_key], self.palette, shown
+            )
         outputs["depth"] = self.renderer_depth(weights=final.weights, ray_samples=final.ray_samples)
         outputs["accumulation"] = self.renderer_accumulation(weights=final.weights)
         if ray_bundle.metadata and "directions_norm" in ray_bundle.metadata:
@@ -226,9 +236,13 @@ class SSNeRFModel(Model):
         """Output prefixes of the supervised levels: "" for the final one, "level0_", ... for earlier ones."""
         return [f"level{index}_" for index in range(self.sampling.num_levels - 1)] + [""]
 
+    @property
+    def rgb_spec(self) -> PropertySpec:
+        """RGB's spec (always trained; its label is nerfstudio's "image")."""
+        return next(spec for spec in self.specs if spec.label_key == "image")
+
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
-        rgb = next(spec for spec in self.specs if spec.label_key == "image")
-        mse = torch.mean((outputs[rgb.prediction_key] - batch["image"].to(self.device)[..., :3]) ** 2)
+        mse = torch.mean((outputs[self.rgb_spec.prediction_key] - batch["image"].to(self.device)[..., :3]) ** 2)
         metrics = {"psnr": -10.0 * torch.log10(mse)}
         if self.training and "weights_list" in outputs:
             metrics["distortion"] = distortion_loss(outputs["weights_list"], outputs["ray_samples_list"])
@@ -251,9 +265,22 @@ class SSNeRFModel(Model):
             losses["distortion_loss"] = self.config.distortion_loss_mult * metrics_dict["distortion"]
         return losses
 
+    @property
+    def display_output_names(self) -> List[str]:
+        """Outputs people look at: RGB and each property as a display image, depth and accumulation. The viewer's
+        output list and `ns-render`'s names; logits, raw values and coarse levels stay internal."""
+        return [spec.name for spec in self.specs] + ["depth", "accumulation"]
+
     @torch.no_grad()
     def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:
-        """Render a full camera; its rays carry the camera pose (viewer and render cameras lack it)."""
+        """The display outputs (`display_output_names`) of a full camera: what the viewer and `ns-render` call."""
+        outputs = self.render_camera(camera, obb_box=obb_box)
+        return {name: outputs[name] for name in self.display_output_names}
+
+    @torch.no_grad()
+    def render_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:
+        """Every output of a full camera, predictions included (evaluation); its rays carry the camera pose (viewer
+        and render cameras lack it)."""
         return super().get_outputs_for_camera(add_pose_metadata(camera), obb_box=obb_box)
 
     def get_image_statistics(self, outputs: Dict[str, Tensor], batch: Dict[str, Tensor]) -> Dict[str, Statistics]:
@@ -284,8 +311,7 @@ class SSNeRFModel(Model):
         images: Dict[str, Tensor] = {}
         for spec in self.specs:
             label = spec.label(batch, self.num_classes).to(self.device)
-            shown_label = spec.kind.display(spec.kind.label_as_prediction(label, self.num_classes), self.palette)
-            shown = torch.cat([shown_label, outputs[spec.name]], dim=1)
-            images[spec.name] = shown if shown.shape[-1] == 3 else colormaps.apply_colormap(shown)
+            shown_label = spec.display(spec.kind.label_as_prediction(label, self.num_classes), self.palette)
+            images[spec.name] = torch.cat([shown_label, spec.display(outputs[spec.prediction_key], self.palette)], 1)
         images["depth"] = colormaps.apply_depth_colormap(outputs["depth"], accumulation=outputs["accumulation"])
         return metrics, images

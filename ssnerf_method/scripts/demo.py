@@ -91,13 +91,14 @@ def evaluate(pipeline: Pipeline, renders_dir: Optional[Path]) -> Dict[str, float
     model.eval()
     dataloader = pipeline.datamanager.fixed_indices_eval_dataloader  # type: ignore[attr-defined]
     for view, (camera, batch) in enumerate(dataloader):
-        outputs = model.get_outputs_for_camera(camera)
+        outputs = model.render_camera(camera)
         view_dir = renders_dir / f"test_view_{view:02d}"
         view_dir.mkdir(parents=True, exist_ok=True)
         for spec in model.specs:
             label = spec.label(batch, model.num_classes).to(model.device)
-            truth = spec.kind.display(spec.kind.label_as_prediction(label, model.num_classes), model.palette)
-            pair = np.concatenate([display_image(spec, truth), display_image(spec, outputs[spec.name])], axis=1)
+            truth = spec.display(spec.kind.label_as_prediction(label, model.num_classes), model.palette)
+            shown = spec.display(outputs[spec.prediction_key], model.palette)
+            pair = np.concatenate([display_image(truth), display_image(shown)], axis=1)
             Image.fromarray(pair).save(view_dir / f"{spec.name}.png")
     return scores
 
