@@ -1,10 +1,12 @@
-"""Shared fixtures: a tiny dataset in the SS-NeRF format, written from arrays so each test can break one file."""
+"""Shared fixtures: a tiny dataset in the SS-NeRF format, written from arrays so each test can break one file; and a
+tiny generated scene with a briefly trained `ssnerf-lite` on it (for rendering and export tests)."""
 
 from __future__ import annotations
 
+import copy
 import json
 from pathlib import Path
-from typing import Callable, Dict
+from typing import Callable, Dict, Tuple
 
 import numpy as np
 import pytest
@@ -85,3 +87,33 @@ def edit_transforms() -> Callable[[Path, Callable[[Dict], None]], None]:
         path.write_text(json.dumps(transforms))
 
     return edit
+
+
+@pytest.fixture(scope="session")
+def trained_scene(tmp_path_factory) -> Tuple[Path, Path]:
+    """A generated 40x30 scene (10 frames, a 12-frame fly-through) and the config.yml of an `ssnerf-lite` with
+    every property trained on it for 40 steps at the benchmark's --quick sizes (one thread)."""
+    import torch
+
+    from nerfstudio.scripts.train import main as train_main
+
+    from ssnerf_method.experiments.benchmark import shrink_for_quick
+    from ssnerf_method.method_configs import ssnerf_lite_config
+    from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
+
+    torch.set_num_threads(1)
+    torch.manual_seed(0)
+    root = tmp_path_factory.mktemp("trained_scene")
+    scene = root / "scene"
+    make_scene(MakeSceneConfig(output_dir=scene, width=40, height=30, num_frames=10, path_frames=12, path_seconds=1.0))
+    config = copy.deepcopy(ssnerf_lite_config)
+    config.pipeline.datamanager.data = scene  # type: ignore[attr-defined]
+    shrink_for_quick(config)
+    config.machine.device_type = "cpu"
+    config.vis = "tensorboard"
+    config.output_dir, config.experiment_name, config.timestamp = root / "outputs", "tiny", "run"
+    config.max_num_iterations = config.steps_per_save = 40
+    config.steps_per_eval_batch = config.steps_per_eval_image = config.steps_per_eval_all_images = 10**6
+    config.logging.local_writer.enable = False
+    train_main(config)
+    return scene, root / "outputs" / "tiny" / "ssnerf-lite" / "run" / "config.yml"

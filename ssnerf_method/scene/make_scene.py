@@ -20,6 +20,8 @@ import cv2
 import numpy as np
 import tyro
 
+from ssnerf_method.data.camera_path import to_model_frame, write_camera_path
+from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.labels.edges import canny_edges
 from ssnerf_method.labels.keypoints import keypoint_heatmap
 from ssnerf_method.labels.shading import lambertian_shading
@@ -58,6 +60,11 @@ class MakeSceneConfig:
     """Seed of the camera loop's phase/shape and of the colour jitter (same seed, same bytes)."""
     test_every: int = 5
     """Frame i is a test (and val) frame when i % test_every == test_every // 2."""
+    path_frames: int = 120
+    """Frames of the fly-through along the same loop written to camera_paths/fly_through.json (for `ns-render
+    camera-path` and the viewer's render panel); 0 writes none."""
+    path_seconds: float = 5.0
+    """Duration of the fly-through video."""
     overwrite: bool = False
     """Replace the scene files (transforms.json and the label folders) of a non-empty output_dir."""
 
@@ -215,7 +222,21 @@ def make_scene(config: MakeSceneConfig) -> Path:
     }
     path = config.output_dir / "transforms.json"
     path.write_text(json.dumps(transforms, indent=2) + "\n")
+    if config.path_frames > 0:
+        write_fly_through(config, k["fl_y"])
     return path
+
+
+FLY_THROUGH = Path("camera_paths") / "fly_through.json"
+"""The generated scene's camera path, relative to its folder."""
+
+
+def write_fly_through(config: MakeSceneConfig, fy: float) -> Path:
+    """The camera loop sampled `path_frames` times, in the model's frame (as the dataparser will place the data)."""
+    outputs = SSNeRFDataParserConfig(data=config.output_dir).setup().get_dataparser_outputs("train")
+    poses = to_model_frame(np.stack(camera_path(config.path_frames, config.seed)), outputs)
+    return write_camera_path(config.output_dir / FLY_THROUGH, list(poses), config.width, config.height, fy,
+                             config.path_seconds)
 
 
 def entrypoint() -> None:
