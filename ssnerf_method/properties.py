@@ -134,6 +134,13 @@ class PropertyKind(ABC):
         """A label in the rendered prediction's layout (for display), unlabelled pixels zeroed."""
         return torch.nan_to_num(label, nan=0.0)
 
+    def encode(self, prediction: Float[Tensor, "height width channels"]) -> np.ndarray:
+        """A rendered prediction as this kind's label file content (what `read` reads back): 8-bit values/255,
+        (H, W) for one channel, (H, W, 3) for three."""
+        values = torch.nan_to_num(prediction.detach().float(), nan=0.0).clamp(0.0, 1.0).cpu().numpy()
+        encoded = np.round(values * 255.0).astype(np.uint8)
+        return encoded[..., 0] if encoded.shape[-1] == 1 else encoded
+
     def reframe(self, label: Tensor, rotation: Float[Tensor, "3 3"]) -> Tensor:
         """A label moved to another camera whose frame is `rotation` @ this one's (labels warped between views).
         Most properties are not vectors in the camera frame and stay as they are."""
@@ -189,6 +196,10 @@ class ClassKind(PropertyKind):
     def label_as_prediction(self, label: Tensor, num_classes: int) -> Tensor:
         ids = label[..., 0].long().clamp(max=num_classes - 1) * self.valid(label)
         return F.one_hot(ids, num_classes).float()
+
+    def encode(self, prediction: Tensor) -> np.ndarray:
+        """The most likely class id per pixel, (H, W) uint8."""
+        return prediction.argmax(dim=-1).cpu().numpy().astype(np.uint8)
 
 
 class NormalKind(PropertyKind):

@@ -1,5 +1,5 @@
 """Camera paths in nerfstudio's viewer format (`camera_paths/*.json`), for `ns-render camera-path` and the viewer's
-render panel.
+render panel; and new poses between given ones (`interpolate_poses`).
 
 nerfstudio reads a path's poses in the model's world frame, i.e. after the dataparser has oriented, centred and
 scaled the dataset's poses; `to_model_frame` applies that same transform to poses given in the dataset's frame.
@@ -13,6 +13,7 @@ from typing import Sequence
 
 import numpy as np
 from jaxtyping import Float
+from scipy.spatial.transform import Rotation, Slerp
 
 from nerfstudio.data.dataparsers.base_dataparser import DataparserOutputs
 
@@ -47,3 +48,15 @@ def write_camera_path(
     }
     write_json_atomic(path, content)
     return path
+
+
+def interpolate_poses(
+    first: Float[np.ndarray, "3 4"], second: Float[np.ndarray, "3 4"], fractions: Sequence[float]
+) -> Float[np.ndarray, "n 3 4"]:
+    """Camera-to-world poses at `fractions` of the way from `first` to `second`: camera centres on the straight line,
+    orientations by spherical interpolation (proper rotations; 0.5 is the paper's "average of adjacent poses")."""
+    rotations = Rotation.from_matrix(np.stack([first[:3, :3], second[:3, :3]]))
+    between = Slerp([0.0, 1.0], rotations)(np.asarray(fractions, dtype=np.float64)).as_matrix()
+    weights = np.asarray(fractions, dtype=np.float64)[:, None]
+    centres = (1.0 - weights) * first[:3, 3] + weights * second[:3, 3]
+    return np.concatenate([between, centres[:, :, None]], axis=-1)

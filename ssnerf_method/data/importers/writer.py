@@ -162,15 +162,17 @@ class DatasetWriter:
         provenance: dict[str, Any],
         semantic_classes: Sequence[str] | None = None,
         semantic_colors: Sequence[tuple[int, int, int]] | None = None,
+        provenance_key: str = "ssnerf_import",
     ) -> Path:
-        """Write transforms.json: `intrinsics` (see `centred_pinhole`), class list, split file lists, the frames."""
+        """Write transforms.json: `intrinsics` (see `centred_pinhole`), class list, split file lists, the frames, and
+        under `provenance_key` where they came from."""
         transforms: dict[str, Any] = dict(intrinsics)
         if semantic_classes is not None:
             transforms["semantic_classes"] = list(semantic_classes)
             if semantic_colors is not None:
                 transforms["semantic_colors"] = [list(color) for color in semantic_colors]
         transforms.update({f"{name}_filenames": list(splits[name]) for name in SPLITS})
-        transforms["ssnerf_import"] = provenance
+        transforms[provenance_key] = provenance
         transforms["frames"] = self.frames
         path = self.root / "transforms.json"
         write_json_atomic(path, transforms)
