@@ -2,8 +2,9 @@
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
+APT_PACKAGES := ffmpeg chromium
 
-.PHONY: demo test env
+.PHONY: demo test env system
 
 env: $(VENV)/.installed
 
@@ -14,8 +15,15 @@ $(VENV)/.installed: pyproject.toml
 	$(BIN)/pip install --force-reinstall --no-deps opencv-contrib-python-headless==4.10.0.84
 	touch $@
 
+# Debian packages the tests use: ffmpeg (ns-render's videos) and chromium (the viewer checked in a browser).
+system:
+	@if command -v ffmpeg >/dev/null && command -v chromium >/dev/null; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi; \
+	echo "installing $(APT_PACKAGES) with apt-get"; \
+	$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $(APT_PACKAGES)
+
 demo: env
 	$(BIN)/ssnerf-demo --output-dir demo_output --overwrite
 
-test: env
+test: env system
 	$(BIN)/python -m pytest -q

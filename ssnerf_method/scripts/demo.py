@@ -30,7 +30,7 @@ from ssnerf_method.evaluation.figures import display_image
 from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
-from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
+from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_scene
 
 
 DEMO_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
@@ -162,11 +162,15 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
     }
     (config.output_dir / "metrics.json").write_text(json.dumps(summary, indent=2))
     print_table(results)
+    names = " ".join(spec.name for spec in pipeline.model.specs)  # type: ignore[attr-defined]
     CONSOLE.print(
         f"Trained in {train_seconds / 60:.1f} min; demo took {(time.time() - start) / 60:.1f} min.\n"
         f"Metrics: {config.output_dir / 'metrics.json'}\nRenders (ground truth | SS-NeRF): "
         f"{config.output_dir / 'renders'}\nModel config: {config_path}  (try: ns-eval --load-config {config_path} "
-        "--output-path eval.json)"
+        f"--output-path eval.json)\nBrowse every property: ns-viewer --load-config {config_path}\n"
+        f"Fly-through video of every property: ns-render camera-path --load-config {config_path} "
+        f"--camera-path-filename {scene_dir / FLY_THROUGH} --rendered-output-names {names} "
+        f"--output-path {config.output_dir / 'fly_through.mp4'}"
     )
     return results
 
