@@ -5,7 +5,8 @@ the checkpoint (the code path of `ns-viewer --load-config`) in this process, and
 browser's camera is put at a training pose, then the "Output type" dropdown of the control panel is switched to
 `semantics` and to `normals` with mouse clicks, and each time the page is captured once the browser shows the
 viewer's new full-resolution image. The semantic screenshot must show the dataset's class colours where the ground
-truth of that training frame has those classes; the normals screenshot must look nothing like it.
+truth of that training frame has those classes; the normals screenshot must look nothing like it. Then the semantics
+panel: every class has a legend entry in its colour, and picking one class in "Show class" shows it over RGB.
 
 Needs Debian's `chromium` (the test fails, not skips, without it). Screenshots go to
 `$SSNERF_TEST_ARTIFACTS/viewer/` (default: `test_artifacts/viewer/` in the repository).
@@ -153,6 +154,16 @@ def same_view(truth: np.ndarray, view: np.ndarray) -> Tuple[np.ndarray, np.ndarr
     return truth, sampled
 
 
+def legend_value_js(entry: str) -> str:
+    """JavaScript for the colour ("#rrggbb") of the viser colour input labelled `entry` (viser's ColorInput does not
+    carry the label's id, so the input is found in the label's row)."""
+    return f"""(() => {{
+        const label = Array.from(document.querySelectorAll('label')).find(l => l.textContent === {json.dumps(entry)});
+        const row = label && label.closest('.mantine-Flex-root');
+        const input = row && row.querySelector('input');
+        return input ? input.value : null; }})()"""
+
+
 def pick_training_view(scene: Path, filenames: List[str], num_classes: int) -> Tuple[int, np.ndarray]:
     """The training frame whose ground-truth semantics has the most classes above LARGE_CLASS_SHARE (first wins)."""
     best, best_count, best_label = 0, -1, None
@@ -222,6 +233,22 @@ def test_viewer_output_type_dropdown_in_chromium(tmp_path: Path, single_thread, 
                 Image.fromarray(shots[output]).save(artifacts_dir / f"viewer_{output}.png")
                 mark(f"{output} shown")
             box = viewport_box(page)
+
+            # The semantics panel under "Custom Elements": one legend entry per class ("id: name" with its colour),
+            # and "Show class", which tints one class over a dimmed RGB in the semantics output.
+            entries = [f"{number}: {name}" for number, name in enumerate(classes)]
+            legend = {entry: page.evaluate(legend_value_js(entry)) for entry in entries}
+            report["legend"] = legend
+            chosen = int(np.argmax(shares(truth.astype(np.int64), len(classes))))
+            select_dropdown_option(page, "Show class", entries[chosen], timeout=TIMEOUT)  # shown with semantics only
+            since = time.monotonic()
+            select_dropdown_option(page, "Output type", "semantics", timeout=TIMEOUT)
+            highlighted = server.log.wait_for("semantics", since=since, timeout=TIMEOUT, c2w=c2w)
+            Image.fromarray(highlighted.image).save(artifacts_dir / "viewer_semantics_one_class_sent.png")
+            shots["one class"] = wait_for_viewport(page, highlighted.image, TIMEOUT)
+            Image.fromarray(shots["one class"]).save(artifacts_dir / "viewer_semantics_one_class.png")
+            mark("one class shown")
+            plain_semantics = server.log.wait_for("semantics", since=0.0, timeout=TIMEOUT, c2w=c2w).image
     finally:
         if browser is not None and browser.log_path.is_file():
             shutil.copy(browser.log_path, artifacts_dir / "chromium.log")
@@ -281,7 +308,24 @@ def test_viewer_output_type_dropdown_in_chromium(tmp_path: Path, single_thread, 
         f"the semantic screenshot agrees with the training frame's labels on only {agreement:.0%} of pixels"
     )
 
-    # 3. The normals screenshot is not a semantic map: few class colours, and not where the semantic ones are.
+    # 3. Every class has its legend entry, in its colour; one class over RGB is exactly the model's highlight of the
+    # rendered semantics and RGB the viewer sent at this pose (pre-JPEG images: a level or two of rounding).
+    missing_legend = [entry for entry, value in legend.items() if value is None]
+    assert not missing_legend, f"the viewer shows no legend entry for {missing_legend}"
+    for (entry, value), colour in zip(legend.items(), palette):
+        assert value.lower() == "#" + "".join(f"{int(c):02x}" for c in colour), (entry, value, colour.tolist())
+    rgb_sent = rgb.image.astype(np.float64) / 255.0
+    grey = (0.299 * rgb_sent[..., 0] + 0.587 * rgb_sent[..., 1] + 0.114 * rgb_sent[..., 2])[..., None]
+    in_class = np.abs(plain_semantics.astype(np.int16) - palette[chosen]).max(axis=-1, keepdims=True) <= 1
+    expected = np.where(in_class, 0.35 * rgb_sent + 0.65 * palette[chosen] / 255.0, 0.4 * grey) * 255.0
+    error = np.abs(highlighted.image.astype(np.float64) - expected)
+    report["one_class"] = {"class": classes[chosen], "class_share": float(in_class.mean()),
+                           "mean_abs_error": float(error.mean()), "p99_abs_error": float(np.percentile(error, 99))}
+    (artifacts_dir / "report.json").write_text(json.dumps(report, indent=2, default=str))
+    assert 0.05 < in_class.mean() < 0.95, report["one_class"]
+    assert error.mean() < 1.5 and np.percentile(error, 99) < 3.0, report["one_class"]
+
+    # 4. The normals screenshot is not a semantic map: few class colours, and not where the semantic ones are.
     normals_ids = classify(normals_view, palette)
     normals_palette_share = float((normals_ids >= 0).mean())
     same_class = float(((normals_ids == semantic_ids) & (semantic_ids >= 0)).mean())
