@@ -6,9 +6,9 @@ pixel containing its projection; the closest point wins). Test pixels still empt
 views in turn, then from the nearest filled pixel. Labels that are vectors in the camera frame (normals) are rotated
 into the test camera (`PropertyKind.reframe`); class ids are copied, never blended.
 
-The depth of a training view comes from a `DepthSource`: the dataset's depth maps (`dataset_depth`) when it has them,
-or any other estimate, such as the depth an RGB NeRF renders there (what `ssnerf-benchmark` uses by default, since it
-needs no more input than SS-NeRF gets).
+The depth of a training view comes from a `DepthSource`: by default the dataset's depth maps (`dataset_depth`); any
+other estimate can stand in, such as the depth an RGB NeRF renders there (what `ssnerf-benchmark` uses for data
+without depth maps).
 """
 
 from __future__ import annotations

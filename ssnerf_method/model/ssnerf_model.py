@@ -39,7 +39,6 @@ from ssnerf_method.properties import (
     resolve_properties,
 )
 from ssnerf_method.rendering.palette import semantic_palette
-from ssnerf_method.viewer.semantic_panel import SemanticViewerPanel, highlight_class
 from ssnerf_method.rendering.sampling import (
     HierarchicalSampling,
     ProposalSampling,
@@ -47,6 +46,7 @@ from ssnerf_method.rendering.sampling import (
     SampleLevel,
     SamplingResult,
 )
+from ssnerf_method.viewer.semantic_panel import SemanticViewerPanel, highlight_class
 
 
 @dataclass
