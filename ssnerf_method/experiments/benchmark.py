@@ -18,7 +18,7 @@ import time
 from copy import deepcopy
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Dict, List, Literal, Optional, Tuple
+from typing import Any, Callable, Dict, List, Literal, Optional, Tuple
 
 import numpy as np
 import torch
@@ -47,6 +47,17 @@ NERF = "nerf"
 """Run name of the RGB-only model (the Hybrid baseline's renderer and Table 2's NeRF row)."""
 ALL = "ssnerf-all"
 """Run name of the all-properties model."""
+
+
+@dataclass
+class ModelRun:
+    """One model to train on a scene: its run name (its folder), properties and model-config overrides."""
+
+    name: str
+    properties: Tuple[str, ...]
+    """Properties trained besides RGB."""
+    overrides: Dict[str, Any] = field(default_factory=dict)
+    """`SSNeRFModelConfig` fields to set (e.g. {"branches": {"semantics": "v"}}, {"loss_weights": {"rgb": 0.0}})."""
 
 
 @dataclass
@@ -111,20 +122,23 @@ class SceneBenchmark:
         self.folder = config.output / "runs" / name
         self.steps = config.steps or DEFAULT_STEPS[config.method]
 
-    def models(self) -> Dict[str, Tuple[str, ...]]:
-        """Run name -> properties it trains."""
-        runs: Dict[str, Tuple[str, ...]] = {NERF: ()}
-        runs.update({f"ssnerf-{name}": (name,) for name in self.config.properties})
+    def models(self) -> List[ModelRun]:
+        """The RGB-only NeRF, one SS-NeRF per property and (optionally) the all-properties one."""
+        runs = [ModelRun(NERF, ()), *(ModelRun(f"ssnerf-{name}", (name,)) for name in self.config.properties)]
         if self.config.all_properties_model:
-            runs[ALL] = tuple(self.config.properties)
+            runs.append(ModelRun(ALL, tuple(self.config.properties)))
         return runs
 
-    def trainer_config(self, run: str, properties: Tuple[str, ...]) -> TrainerConfig:
+    def trainer_config(self, run: ModelRun) -> TrainerConfig:
         trainer = deepcopy(ssnerf_config if self.config.method == "ssnerf" else ssnerf_lite_config)
         trainer.pipeline.datamanager.data = self.scene  # type: ignore[attr-defined]
-        trainer.pipeline.model.properties = properties  # type: ignore[attr-defined]
+        trainer.pipeline.model.properties = run.properties  # type: ignore[attr-defined]
+        model = trainer.pipeline.model  # type: ignore[attr-defined]
+        for key, value in run.overrides.items():  # a dict override adds to the method's (e.g. lite's losses)
+            current = getattr(model, key)
+            setattr(model, key, {**current, **value} if isinstance(current, dict) else deepcopy(value))
         trainer.output_dir = self.folder
-        trainer.experiment_name = run
+        trainer.experiment_name = run.name
         trainer.timestamp = "run"
         trainer.vis = "tensorboard"
         trainer.max_num_iterations = self.steps
@@ -138,19 +152,25 @@ class SceneBenchmark:
     def config_path(self, run: str) -> Path:
         return self.folder / run / self.config.method / "run" / "config.yml"
 
-    def train_and_score(self, run: str, properties: Tuple[str, ...]) -> Dict[str, float]:
-        """Train one model unless its metrics exist; return its test-split metrics."""
-        result = self.folder / run / "metrics.json"
+    def train_and_score(self, run: ModelRun) -> Dict[str, float]:
+        """Train one model unless its metrics exist; return its test-split metrics (with `train_seconds`, the
+        wall-clock time of its training, None if an earlier call trained it, and nerfstudio's `seed`)."""
+        result = self.folder / run.name / "metrics.json"
         if result.is_file():
-            CONSOLE.print(f"[dim]{self.name}/{run}: done earlier, reusing {result}")
+            CONSOLE.print(f"[dim]{self.name}/{run.name}: done earlier, reusing {result}")
             return json.loads(result.read_text())
-        trainer = self.trainer_config(run, properties)
+        trainer = self.trainer_config(run)
         checkpoint = trainer.get_checkpoint_dir() / f"step-{self.steps - 1:09d}.ckpt"
+        seconds = None  # trained in an earlier, interrupted call
         if not checkpoint.is_file():
-            CONSOLE.rule(f"{self.name}: training {run} ({', '.join(properties) or 'RGB only'}) for {self.steps} steps")
+            what = ", ".join(run.properties) or "RGB only"
+            CONSOLE.rule(f"{self.name}: training {run.name} ({what}) for {self.steps} steps")
+            start = time.time()
             train_main(trainer)
-        _, pipeline, _, _ = eval_setup(self.config_path(run), test_mode="test")
+            seconds = round(time.time() - start, 1)
+        _, pipeline, _, _ = eval_setup(self.config_path(run.name), test_mode="test")
         metrics = pipeline.get_average_eval_image_metrics()
+        metrics.update(train_seconds=seconds, seed=trainer.machine.seed)
         result.write_text(json.dumps(metrics, indent=2))
         return metrics
 
@@ -170,9 +190,9 @@ class SceneBenchmark:
         """Every model and both baselines on this scene: name -> test-split metrics."""
         models = self.models()
         results = {}
-        for number, (run, properties) in enumerate(models.items(), start=1):
-            CONSOLE.print(f"[bold]{self.name}: model {number}/{len(models)}: {run}")
-            results[run] = self.train_and_score(run, properties)
+        for number, run in enumerate(models, start=1):
+            CONSOLE.print(f"[bold]{self.name}: model {number}/{len(models)}: {run.name}")
+            results[run.name] = self.train_and_score(run)
         nerf = self.load(NERF)
         specs = self.baseline_specs(nerf)
         num_classes = len(nerf.datamanager.train_dataset.metadata.get("semantic_classes", []))  # type: ignore

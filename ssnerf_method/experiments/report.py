@@ -23,7 +23,13 @@ def headline(name: str) -> Tuple[str, bool]:
     return spec.metric_prefix + key, higher
 
 
-def _mean(values: Sequence[Optional[float]]) -> Optional[float]:
+def property_title(name: str) -> str:
+    """A property's column title: the paper's abbreviation, its Table 1 metric and the better direction."""
+    key, higher = headline(name)
+    return f"{REGISTRY[name].short} {key.split('_', 1)[1]} {'↑' if higher else '↓'}"
+
+
+def average(values: Sequence[Optional[float]]) -> Optional[float]:
     kept = [value for value in values if value is not None and not math.isnan(value)]
     return sum(kept) / len(kept) if kept else None
 
@@ -35,11 +41,11 @@ def table1(results: Results, properties: Sequence[str]) -> List[Dict]:
     for scene, runs in results.items():
         rows.append({"row": f"SS-NeRF ({scene})", **{
             name: runs.get(f"ssnerf-{name}", {}).get(headline(name)[0]) for name in properties}})
-    rows.append({"row": "SS-NeRF, average", **{name: _mean([row[name] for row in rows]) for name in properties}})
+    rows.append({"row": "SS-NeRF, average", **{name: average([row[name] for row in rows]) for name in properties}})
     for label, run in (("SS-NeRF, one model for all properties, average", "ssnerf-all"),
                        ("Heuristic, average", "heuristic"), ("Hybrid, average", "hybrid")):
         if any(run in runs for runs in results.values()):
-            rows.append({"row": label, **{name: _mean([runs.get(run, {}).get(headline(name)[0])
+            rows.append({"row": label, **{name: average([runs.get(run, {}).get(headline(name)[0])
                                                        for runs in results.values()]) for name in properties}})
     return rows
 
@@ -49,17 +55,17 @@ def table2(results: Results, properties: Sequence[str]) -> List[Dict]:
     columns = ["nerf", *(f"ssnerf-{name}" for name in properties)]
     rows = [{"row": scene, **{column: runs.get(column, {}).get("psnr") for column in columns}}
             for scene, runs in results.items()]
-    rows.append({"row": "average", **{column: _mean([row[column] for row in rows]) for column in columns}})
+    rows.append({"row": "average", **{column: average([row[column] for row in rows]) for column in columns}})
     return rows
 
 
-def _cell(value: Optional[float], digits: int) -> str:
+def cell(value: Optional[float], digits: int) -> str:
     return "–" if value is None or math.isnan(value) else f"{value:.{digits}f}"
 
 
 def markdown(rows: List[Dict], columns: Sequence[str], titles: Sequence[str], digits: int) -> str:
     lines = ["| | " + " | ".join(titles) + " |", "|---|" + "---|" * len(titles)]
-    lines += ["| " + row["row"] + " | " + " | ".join(_cell(row[column], digits) for column in columns) + " |"
+    lines += ["| " + row["row"] + " | " + " | ".join(cell(row[column], digits) for column in columns) + " |"
               for row in rows]
     return "\n".join(lines)
 
@@ -81,8 +87,7 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
     """Write `report.md` and `tables.json` into `output`; returns the report's path."""
     first = table1(results, properties)
     second = table2(results, properties)
-    titles = [f"{REGISTRY[name].short} {headline(name)[0].split('_', 1)[1]} {'↑' if headline(name)[1] else '↓'}"
-              for name in properties]
+    titles = [property_title(name) for name in properties]
     verdicts = {baseline: beats(first, properties, baseline) for baseline in ("Heuristic", "Hybrid")}
     summary = "; ".join(
         f"beats {baseline} on {sum(won.values())}/{len(won)}"

@@ -1,0 +1,285 @@
+"""`ssnerf-study`: the paper's ablation and multi-task studies (Sec. 4.3), one command each.
+
+Each study trains its models on every scene with the benchmark's machinery (`SceneBenchmark`: nerfstudio's trainer,
+the `ns-eval` metrics, one folder per run, a finished run never retrained) and writes `study_<name>.md` and
+`study_<name>.json` next to the runs: the paper's table with your numbers, plus the exact command, the commit, the
+method, steps, seed and wall-clock time of every run. Runs are named by what they train, so a study reuses the runs
+`ssnerf-benchmark` or another study left in the same output folder (e.g. `ssnerf-shading`).
+
+- `branches` (Table 3): each property on F_dec^v and on F_dec^nv; normals in this plugin's world-frame mode and in the
+  paper's pose-conditioned mode.
+- `rgb` (Table 2): left, RGB PSNR of the RGB-only NeRF and of each single-property SS-NeRF; right, each property with
+  and without the RGB loss (weight 0: the RGB head stays, nothing trains it).
+- `multitask` (Table 4): a target property alone, with each other property, and with all; (+)/(-) against alone.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Literal, Optional, Tuple, Union
+
+import tyro
+from typing_extensions import Annotated
+
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from ssnerf_method.experiments.benchmark import (
+    ALL,
+    DEFAULT_STEPS,
+    NERF,
+    BenchmarkConfig,
+    ModelRun,
+    SceneBenchmark,
+    generated_scenes,
+    quick_config,
+)
+from ssnerf_method.experiments.report import average, cell, headline, markdown, property_title
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
+
+Results = Dict[str, Dict[str, Dict[str, Any]]]
+"""scene -> run name -> that run's test-split metrics."""
+
+
+def single(name: str) -> str:
+    """Run name of the default single-property SS-NeRF (the benchmark's)."""
+    return f"ssnerf-{name}"
+
+
+def together(names: Tuple[str, ...]) -> str:
+    """Run name of a model trained on `names` (registry order, so the same set always has the same name)."""
+    ordered = [name for name in OPTIONAL_PROPERTIES if name in names]
+    if ordered == list(OPTIONAL_PROPERTIES):
+        return ALL
+    return single(ordered[0]) if len(ordered) == 1 else "ssnerf-" + "+".join(ordered)
+
+
+@dataclass
+class StudyConfig:
+    """What every study shares: scenes, architecture, output folder, steps and --quick."""
+
+    scenes: Tuple[Path, ...] = ()
+    """Datasets in the SS-NeRF format. Default: two generated default scenes (seeds 0 and 1) in OUTPUT/scenes."""
+    method: Literal["ssnerf-lite", "ssnerf"] = "ssnerf-lite"
+    """Architecture of every trained model."""
+    output: Path = Path("benchmark_report")
+    """Folder for the reports and every run (shared with `ssnerf-benchmark`; resumable)."""
+    steps: Optional[int] = None
+    """Training steps per model (default: 1000 for ssnerf-lite, 20000 for ssnerf)."""
+    quick: bool = False
+    """Minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not meaningful."""
+
+    name = "study"
+
+    def runs(self) -> List[ModelRun]:
+        raise NotImplementedError
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        """The study's Markdown tables and their JSON."""
+        raise NotImplementedError
+
+    def benchmark_config(self) -> BenchmarkConfig:
+        config = BenchmarkConfig(scenes=self.scenes, method=self.method, output=self.output, steps=self.steps,
+                                 quick=self.quick)
+        return quick_config(config) if self.quick else config
+
+
+@dataclass
+class BranchStudy(StudyConfig):
+    """Table 3: each property on the view-dependent decoder F_dec^v and on the view-independent F_dec^nv."""
+
+    properties: Tuple[str, ...] = ("semantics", "shading", "keypoints", "edges")
+    """Properties moved between the branches."""
+    normals: bool = True
+    """Also compare normals in this plugin's world-frame mode with the paper's pose-conditioned mode."""
+
+    name = "branches"
+
+    def run_on(self, prop: str, branch: str) -> ModelRun:
+        if branch == REGISTRY[prop].branch:
+            return ModelRun(single(prop), (prop,))
+        return ModelRun(f"{single(prop)}-on-{branch}", (prop,), {"branches": {prop: branch}})
+
+    def runs(self) -> List[ModelRun]:
+        runs = [self.run_on(prop, branch) for prop in self.properties for branch in ("v", "nv")]
+        if self.normals:
+            runs += [ModelRun(single("normals"), ("normals",)),
+                     ModelRun("ssnerf-normals-pose", ("normals",), {"normals_mode": "pose"})]
+        return runs
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        rows = []
+        for branch, title in (("v", "F_dec^v"), ("nv", "F_dec^nv")):
+            for scene, runs in [*results.items(), ("average", None)]:
+                row: Dict[str, Any] = {"row": f"{title} ({scene})"}
+                for prop in self.properties:
+                    key, run = headline(prop)[0], self.run_on(prop, branch).name
+                    values = [r.get(run, {}).get(key) for r in ([runs] if runs else results.values())]
+                    row[prop] = average(values)
+                rows.append(row)
+        text = markdown(rows, list(self.properties), [property_title(p) for p in self.properties], 4)
+        data: Dict[str, Any] = {"table3": rows}
+        if self.normals:
+            key = headline("normals")[0]
+            normal_rows = [{"row": title, **{scene: runs.get(run, {}).get(key) for scene, runs in results.items()},
+                            "average": average([runs.get(run, {}).get(key) for runs in results.values()])}
+                           for title, run in (("world-frame normals on F_dec^nv (this plugin's default)",
+                                               single("normals")),
+                                              ("pose-conditioned normals (the paper's)", "ssnerf-normals-pose"))]
+            columns = [*results, "average"]
+            text += f"\n\n{property_title('normals')}\n\n" + markdown(normal_rows, columns, columns, 4)
+            data["normals"] = normal_rows
+        return text, data
+
+
+@dataclass
+class RGBStudy(StudyConfig):
+    """Table 2: RGB PSNR with and without each property (left); each property with and without RGB (right)."""
+
+    properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
+
+    name = "rgb"
+
+    def runs(self) -> List[ModelRun]:
+        return [ModelRun(NERF, ()), *(ModelRun(single(prop), (prop,)) for prop in self.properties),
+                *(ModelRun(f"{single(prop)}-no-rgb", (prop,), {"loss_weights": {"rgb": 0.0}})
+                  for prop in self.properties)]
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        left_columns = [NERF, *(single(prop) for prop in self.properties)]
+        left = [{"row": scene, **{run: runs.get(run, {}).get("psnr") for run in left_columns}}
+                for scene, runs in results.items()]
+        left.append({"row": "average", **{run: average([row[run] for row in left]) for run in left_columns}})
+        right = []
+        for scene, runs in [*results.items(), ("average", None)]:
+            for suffix, title in (("", "with RGB"), ("-no-rgb", "without RGB")):
+                row: Dict[str, Any] = {"row": f"{title} ({scene})"}
+                for prop in self.properties:
+                    run, key = single(prop) + suffix, headline(prop)[0]
+                    row[prop] = average([r.get(run, {}).get(key) for r in ([runs] if runs else results.values())])
+                right.append(row)
+        titles = ["NeRF", *(f"SS-NeRF-{REGISTRY[prop].short}" for prop in self.properties)]
+        text = ("Left: RGB PSNR\n\n" + markdown(left, left_columns, titles, 2)
+                + "\n\nRight: each property with and without the RGB loss\n\n"
+                + markdown(right, list(self.properties), [property_title(p) for p in self.properties], 4))
+        return text, {"table2_left": left, "table2_right": right}
+
+
+@dataclass
+class MultiTaskStudy(StudyConfig):
+    """Table 4: a target property alone, with each other property, and with all of them."""
+
+    target: str = "shading"
+    """The property scored (the paper's Table 4 uses SH)."""
+    others: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    """Properties paired with the target (the target itself is skipped)."""
+
+    name = "multitask"
+
+    def partners(self) -> List[str]:
+        return [prop for prop in self.others if prop != self.target]
+
+    def columns(self) -> Dict[str, ModelRun]:
+        """Column title -> the run scored in it."""
+        columns = {"alone": ModelRun(single(self.target), (self.target,))}
+        for prop in self.partners():
+            pair = (self.target, prop)
+            columns[f"+{REGISTRY[prop].short}"] = ModelRun(together(pair), pair)
+        everything = (self.target, *self.partners())
+        columns["all"] = ModelRun(together(everything), everything)
+        return columns
+
+    def runs(self) -> List[ModelRun]:
+        return list(self.columns().values())
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        key, higher = headline(self.target)
+        columns = self.columns()
+        rows = []
+        for scene, runs in results.items():
+            row: Dict[str, Any] = {"row": scene}
+            row.update({title: runs.get(run.name, {}).get(key) for title, run in columns.items()})
+            rows.append(row)
+        rows.append({"row": "average", **{title: average([row[title] for row in rows]) for title in columns}})
+        marked = []
+        for row in rows:
+            alone = row["alone"]
+            cells: Dict[str, Any] = {"row": row["row"]}
+            for title in columns:
+                value = row[title]
+                mark = ""
+                if title != "alone" and value is not None and alone is not None and value != alone:
+                    mark = " (+)" if (value > alone) == higher else " (−)"
+                cells[title] = cell(value, 4) + mark
+            marked.append(cells)
+        lines = ["| | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
+        lines += ["| " + cells["row"] + " | " + " | ".join(cells[title] for title in columns) + " |" for cells in marked]
+        text = f"{property_title(self.target)}; (+) better, (−) worse than the target alone\n\n" + "\n".join(lines)
+        return text, {"table4": rows, "target": self.target, "metric": key, "higher_is_better": higher}
+
+
+def commit() -> Optional[str]:
+    """The plugin's git commit, when it runs from a checkout."""
+    try:
+        return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
+                              text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return None
+
+
+def run_study(study: StudyConfig) -> Results:
+    """Train (or reuse) every run of `study` on every scene and write its report; returns the per-scene results."""
+    start = time.time()
+    config = study.benchmark_config()
+    config.output.mkdir(parents=True, exist_ok=True)
+    scenes = list(config.scenes) or generated_scenes(config)
+    runs = study.runs()
+    results: Results = {}
+    for scene in scenes:
+        bench = SceneBenchmark(config, scene, scene.name)
+        results[scene.name] = {}
+        for number, run in enumerate(runs, start=1):
+            CONSOLE.print(f"[bold]{study.name} study, {scene.name}: model {number}/{len(runs)}: {run.name}")
+            results[scene.name][run.name] = bench.train_and_score(run)
+    text, tables = study.tables(results)
+    steps = config.steps or DEFAULT_STEPS[config.method]
+    details = {
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": commit(), "method": config.method, "steps": steps,
+        "quick": config.quick, "wall_clock_seconds": round(time.time() - start, 1),
+        "runs": {scene: {run.name: {"properties": list(run.properties), "overrides": run.overrides,
+                                    "train_seconds": results[scene][run.name].get("train_seconds"),
+                                    "seed": results[scene][run.name].get("seed")} for run in runs}
+                 for scene in results},
+    }
+    report = "\n\n".join([
+        f"# SS-NeRF {study.name} study ({config.method}, {steps} steps per model{', --quick' if config.quick else ''})",
+        f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them.",
+        text,
+        f"Command: `{details['command']}`; commit {details['commit']}; {details['wall_clock_seconds']} s in all; "
+        f"per-run training time and seed in `study_{study.name}.json`.",
+    ])
+    (config.output / f"study_{study.name}.md").write_text(report + "\n")
+    (config.output / f"study_{study.name}.json").write_text(
+        json.dumps({**details, "tables": tables, "results": results}, indent=2))
+    CONSOLE.print(report)
+    return results
+
+
+Study = Union[
+    Annotated[BranchStudy, tyro.conf.subcommand("branches")],
+    Annotated[RGBStudy, tyro.conf.subcommand("rgb")],
+    Annotated[MultiTaskStudy, tyro.conf.subcommand("multitask")],
+]
+
+
+def entrypoint() -> None:
+    """Console script `ssnerf-study`."""
+    run_study(tyro.cli(Study))  # type: ignore[arg-type]
+
+
+if __name__ == "__main__":
+    entrypoint()

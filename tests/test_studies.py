@@ -1,0 +1,66 @@
+"""`ssnerf-study branches|rgb|multitask` end to end with --quick in one output folder: each writes its table with the
+paper's rows and columns, the runs carry their overrides into the trained model, runs are shared between studies by
+name, and a second call retrains nothing."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+
+from nerfstudio.utils.eval_utils import eval_setup
+
+from ssnerf_method.experiments import benchmark
+from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
+
+
+def test_run_names_follow_the_trained_set() -> None:
+    assert together(("shading",)) == "ssnerf-shading"
+    assert together(("shading", "semantics")) == together(("semantics", "shading")) == "ssnerf-semantics+shading"
+    assert together(("edges", "keypoints", "shading", "normals", "semantics")) == "ssnerf-all"
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypatch) -> None:
+    torch.set_num_threads(1)
+    output = tmp_path / "studies"
+    branches = run_study(BranchStudy(quick=True, output=output, properties=("semantics", "edges")))
+    assert set(branches) == {"seed_0", "seed_1"}
+    assert set(branches["seed_0"]) == {"ssnerf-semantics", "ssnerf-semantics-on-v", "ssnerf-edges",
+                                       "ssnerf-edges-on-nv", "ssnerf-normals", "ssnerf-normals-pose"}
+    report = json.loads((output / "study_branches.json").read_text())
+    assert [row["row"] for row in report["tables"]["table3"]] == [
+        "F_dec^v (seed_0)", "F_dec^v (seed_1)", "F_dec^v (average)",
+        "F_dec^nv (seed_0)", "F_dec^nv (seed_1)", "F_dec^nv (average)"]
+    assert all(row["semantics"] is not None and row["edges"] is not None for row in report["tables"]["table3"])
+    assert report["runs"]["seed_0"]["ssnerf-semantics-on-v"]["overrides"] == {"branches": {"semantics": "v"}}
+    assert report["commit"] and report["runs"]["seed_0"]["ssnerf-edges"]["seed"] == 42
+    assert "| F_dec^nv (average) |" in (output / "study_branches.md").read_text()
+    # the override reached the model: semantics is decoded by F_dec^v in that run
+    config = output / "runs" / "seed_0" / "ssnerf-semantics-on-v" / "ssnerf-lite" / "run" / "config.yml"
+    _, pipeline, _, _ = eval_setup(config, test_mode="test")
+    decoders = pipeline.model.sampling.field_module.decoders
+    assert "semantics" in decoders["v"].names and "nv" not in decoders
+
+    rgb = run_study(RGBStudy(quick=True, output=output, properties=("semantics", "edges")))
+    assert {"nerf", "ssnerf-semantics-no-rgb", "ssnerf-edges-no-rgb"} <= set(rgb["seed_1"])
+    tables = json.loads((output / "study_rgb.json").read_text())["tables"]
+    assert [row["row"] for row in tables["table2_left"]] == ["seed_0", "seed_1", "average"]
+    assert [row["row"] for row in tables["table2_right"]][:2] == ["with RGB (seed_0)", "without RGB (seed_0)"]
+
+    calls = []
+    monkeypatch.setattr(benchmark, "train_main", lambda config: calls.append(config))
+    run_study(BranchStudy(quick=True, output=output, properties=("semantics", "edges")))  # all done: nothing trains
+    assert calls == []
+    monkeypatch.undo()
+
+    torch.set_num_threads(1)
+    multitask = run_study(MultiTaskStudy(quick=True, output=output, target="edges", others=("semantics", "normals")))
+    assert set(multitask["seed_0"]) == {"ssnerf-edges", "ssnerf-semantics+edges", "ssnerf-normals+edges",
+                                        "ssnerf-semantics+normals+edges"}
+    table4 = json.loads((output / "study_multitask.json").read_text())["tables"]
+    assert list(table4["table4"][0]) == ["row", "alone", "+SL", "+SN", "all"]
+    text = (output / "study_multitask.md").read_text()
+    assert "(+)" in text or "(−)" in text
