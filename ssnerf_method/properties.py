@@ -289,6 +289,8 @@ class PropertySpec:
     """Evaluation metric, implemented in `ssnerf_method/evaluation/metrics.py`."""
     colormap: str
     """Display colour mapping of a one-channel map (a nerfstudio colormap name); "default" for images in colour."""
+    corruption: Literal["classes", "dense", "sparse", "none"] = "none"
+    """How weak labels of it are made for the auto-labelling study (`labels/corruptions.py`)."""
 
     @property
     def prediction_key(self) -> str:
@@ -325,11 +327,11 @@ REGISTRY: Dict[str, PropertySpec] = {
     spec.name: spec
     for spec in (
         PropertySpec("rgb", "RGB", ColorKind(), None, "v", "mse", 1.0, "psnr", "default"),
-        PropertySpec("semantics", "SL", ClassKind(), "semantics_file_path", "nv", "cross_entropy", 0.04, "miou", "default"),
-        PropertySpec("normals", "SN", NormalKind(), "normals_file_path", "nv", "mse", 1.0, "normal", "default"),
-        PropertySpec("shading", "SH", ScalarKind("sigmoid"), "shading_file_path", "v", "l1", 0.1, "l1", "gray"),
-        PropertySpec("keypoints", "KP", ScalarKind("relu"), "keypoints_file_path", "v", "l1", 2.0, "l1", "gray"),
-        PropertySpec("edges", "ED", ScalarKind("sigmoid"), "edges_file_path", "v", "l1", 0.4, "l1", "gray"),
+        PropertySpec("semantics", "SL", ClassKind(), "semantics_file_path", "nv", "cross_entropy", 0.04, "miou", "default", "classes"),
+        PropertySpec("normals", "SN", NormalKind(), "normals_file_path", "nv", "mse", 1.0, "normal", "default", "dense"),
+        PropertySpec("shading", "SH", ScalarKind("sigmoid"), "shading_file_path", "v", "l1", 0.1, "l1", "gray", "dense"),
+        PropertySpec("keypoints", "KP", ScalarKind("relu"), "keypoints_file_path", "v", "l1", 2.0, "l1", "gray", "sparse"),
+        PropertySpec("edges", "ED", ScalarKind("sigmoid"), "edges_file_path", "v", "l1", 0.4, "l1", "gray", "sparse"),
     )
 }
 """Every property the plugin knows. RGB is always rendered; the others are optional."""

@@ -7,12 +7,15 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 from nerfstudio.utils.eval_utils import eval_setup
 
 from ssnerf_method.experiments import benchmark
+from ssnerf_method.experiments.autolabel import AutoLabelStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
 
 
@@ -64,3 +67,25 @@ def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypa
     assert list(table4["table4"][0]) == ["row", "alone", "+SL", "+SN", "all"]
     text = (output / "study_multitask.md").read_text()
     assert "(+)" in text or "(−)" in text
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_quick_autolabel_scores_weak_labels_and_renders_on_clean_labels(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    output = tmp_path / "autolabel"
+    results = AutoLabelStudy(quick=True, output=output, target="semantics", rates=(0.0, 0.4)).run()
+    assert set(results) == {"seed_0", "seed_1"} and set(results["seed_0"]) == {"0", "0.4"}
+    for scene in results.values():
+        clean, weak = scene["0"], scene["0.4"]
+        assert clean["weak labels, training views"] == 1.0 and clean["weak labels, test views"] == 1.0
+        assert weak["weak labels, training views"] < 0.8  # 40% of the pixels relabelled
+        assert 0.0 <= weak["SS-NeRF, test views"] <= 1.0
+    meta = json.loads((output / "weak" / "seed_0-semantics-0.4-pixels" / "transforms.json").read_text())
+    assert meta["ssnerf_weak_labels"]["rate"] == 0.4
+    clean_root = output / "scenes" / "seed_0"
+    frame = meta["frames"][0]["semantics_file_path"]
+    clean_ids = np.asarray(Image.open(clean_root / frame))
+    weak_ids = np.asarray(Image.open(output / "weak" / "seed_0-semantics-0.4-pixels" / frame))
+    assert (clean_ids != weak_ids).mean() == pytest.approx(0.4, abs=0.01)  # the clean scene itself is untouched
+    rows = json.loads((output / "study_autolabel.json").read_text())["tables"]["autolabel"]
+    assert [row["row"] for row in rows][:3] == ["rate 0 (seed_0)", "rate 0 (seed_1)", "rate 0 (average)"]

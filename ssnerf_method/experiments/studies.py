@@ -21,10 +21,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Literal, Optional, Tuple, Union
-
-import tyro
-from typing_extensions import Annotated
+from typing import Any, Dict, List, Literal, Optional, Tuple
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
@@ -74,9 +71,14 @@ class StudyConfig:
     """Minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not meaningful."""
 
     name = "study"
+    scope = "Metrics on each scene's test split, as `ns-eval` computes them."
 
     def runs(self) -> List[ModelRun]:
         raise NotImplementedError
+
+    def run(self) -> Results:
+        """Train what the study needs on every scene and write its report."""
+        return run_study(self)
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
         """The study's Markdown tables and their JSON."""
@@ -217,7 +219,8 @@ class MultiTaskStudy(StudyConfig):
                 cells[title] = cell(value, 4) + mark
             marked.append(cells)
         lines = ["| | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
-        lines += ["| " + cells["row"] + " | " + " | ".join(cells[title] for title in columns) + " |" for cells in marked]
+        lines += ["| " + cells["row"] + " | " + " | ".join(cells[title] for title in columns) + " |"
+                  for cells in marked]
         text = f"{property_title(self.target)}; (+) better, (−) worse than the target alone\n\n" + "\n".join(lines)
         return text, {"table4": rows, "target": self.target, "metric": key, "higher_is_better": higher}
 
@@ -245,41 +248,34 @@ def run_study(study: StudyConfig) -> Results:
         for number, run in enumerate(runs, start=1):
             CONSOLE.print(f"[bold]{study.name} study, {scene.name}: model {number}/{len(runs)}: {run.name}")
             results[scene.name][run.name] = bench.train_and_score(run)
+    details = {scene: {run.name: {"properties": list(run.properties), "overrides": run.overrides,
+                                  "train_seconds": results[scene][run.name].get("train_seconds"),
+                                  "seed": results[scene][run.name].get("seed")} for run in runs}
+               for scene in results}
+    write_study_report(study, results, details, time.time() - start)
+    return results
+
+
+def write_study_report(study: StudyConfig, results: Results, runs: Dict[str, Any], seconds: float) -> Path:
+    """`study_<name>.md` and `.json` in the output folder: the study's tables, the command, the commit, the method
+    and steps, and `runs` (per scene and run: what it trained, its seed and training time)."""
+    config = study.benchmark_config()
     text, tables = study.tables(results)
     steps = config.steps or DEFAULT_STEPS[config.method]
     details = {
-        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": commit(), "method": config.method, "steps": steps,
-        "quick": config.quick, "wall_clock_seconds": round(time.time() - start, 1),
-        "runs": {scene: {run.name: {"properties": list(run.properties), "overrides": run.overrides,
-                                    "train_seconds": results[scene][run.name].get("train_seconds"),
-                                    "seed": results[scene][run.name].get("seed")} for run in runs}
-                 for scene in results},
+        "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": commit(), "method": config.method,
+        "steps": steps, "quick": config.quick, "wall_clock_seconds": round(seconds, 1), "runs": runs,
     }
     report = "\n\n".join([
         f"# SS-NeRF {study.name} study ({config.method}, {steps} steps per model{', --quick' if config.quick else ''})",
-        f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them.",
+        f"Scenes: {', '.join(results)}. {study.scope}",
         text,
         f"Command: `{details['command']}`; commit {details['commit']}; {details['wall_clock_seconds']} s in all; "
         f"per-run training time and seed in `study_{study.name}.json`.",
     ])
-    (config.output / f"study_{study.name}.md").write_text(report + "\n")
+    path = config.output / f"study_{study.name}.md"
+    path.write_text(report + "\n")
     (config.output / f"study_{study.name}.json").write_text(
         json.dumps({**details, "tables": tables, "results": results}, indent=2))
     CONSOLE.print(report)
-    return results
-
-
-Study = Union[
-    Annotated[BranchStudy, tyro.conf.subcommand("branches")],
-    Annotated[RGBStudy, tyro.conf.subcommand("rgb")],
-    Annotated[MultiTaskStudy, tyro.conf.subcommand("multitask")],
-]
-
-
-def entrypoint() -> None:
-    """Console script `ssnerf-study`."""
-    run_study(tyro.cli(Study))  # type: ignore[arg-type]
-
-
-if __name__ == "__main__":
-    entrypoint()
+    return path

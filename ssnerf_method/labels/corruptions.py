@@ -109,3 +109,30 @@ def corrupt_sparse(
         blob = np.exp(-((rows - centre[0]) ** 2 + (cols - centre[1]) ** 2) / (2 * sigma**2))
         result = np.maximum(result, blob)
     return result
+
+
+DEFAULT_RATES = {"classes": (0.1, 0.3, 0.5), "dense": (0.02, 0.05, 0.1), "sparse": (0.2, 0.4, 0.6)}
+"""Corruption rates of the auto-labelling study: share of pixels relabelled (classes), mean absolute change (dense),
+share of responses dropped and added (sparse)."""
+
+
+def corrupt_label_file(
+    image: np.ndarray, corruption: str, rate: float, num_classes: int, rng: np.random.Generator,
+    mode: Literal["pixels", "regions"] = "pixels",
+) -> np.ndarray:
+    """One label file's 8-bit content (as read, an alpha channel of unlabelled pixels kept) corrupted at `rate`."""
+    channels = 1 if image.ndim == 2 else image.shape[2]
+    has_alpha = channels in (2, 4)
+    values = image[..., :-1] if has_alpha else image
+    values = values[..., 0] if values.ndim == 3 and values.shape[2] == 1 else values
+    if corruption == "classes":
+        weak = corrupt_semantics(values, num_classes, rate, rng, mode)
+    elif corruption == "dense":
+        weak = np.round(corrupt_dense(values.astype(np.float64) / 255.0, rate, rng) * 255.0).astype(np.uint8)
+    elif corruption == "sparse":
+        weak = np.round(corrupt_sparse(values.astype(np.float64) / 255.0, rate, rate, rng) * 255.0).astype(np.uint8)
+    else:
+        raise ValueError(f"no corruption {corruption!r}: use classes, dense or sparse")
+    if not has_alpha:
+        return weak
+    return np.concatenate([weak.reshape(*weak.shape[:2], -1), image[..., -1:]], axis=-1)

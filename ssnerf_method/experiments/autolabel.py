@@ -1,0 +1,148 @@
+"""`ssnerf-study autolabel`: how far SS-NeRF cleans weak labels (the paper's auto-labelling use, Fig. 4, measured).
+
+No pre-trained annotator can be had here, so weak labels are the clean labels corrupted per view
+(`labels/corruptions.py`, the registry's `corruption` of the property). For each scene and rate it writes the weak
+copy of the scene (`OUTPUT/weak/<scene>-<property>-<rate>/`, every frame's label of that property corrupted), trains
+the single-property SS-NeRF on it, and scores, against the clean labels, both the weak labels and SS-NeRF's renders at
+the training views and at the test views.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, Literal, Tuple
+
+import numpy as np
+from PIL import Image
+
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
+from ssnerf_method.data.dataset import SSNeRFDataset
+from ssnerf_method.data.io import StagedOutputFolder, encode_png
+from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes
+from ssnerf_method.experiments.report import average, headline, markdown, property_title
+from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
+from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
+from ssnerf_method.properties import REGISTRY, PropertySpec
+
+COLUMNS = ("weak labels, training views", "SS-NeRF, training views", "weak labels, test views", "SS-NeRF, test views")
+
+
+def make_weak_dataset(
+    clean: Path, destination: Path, spec: PropertySpec, rate: float, mode: Literal["pixels", "regions"], seed: int
+) -> Path:
+    """A copy of the dataset at `clean` whose `spec` labels are corrupted at `rate`, frame i with seed (seed, i)."""
+    meta = json.loads((clean / "transforms.json").read_text())
+    num_classes = len(meta.get("semantic_classes", []))
+    with StagedOutputFolder(destination, overwrite=True) as folder:
+        shutil.copytree(clean, folder, dirs_exist_ok=True)
+        for index, frame in enumerate(meta["frames"]):
+            if spec.file_key not in frame:
+                continue
+            path = folder / frame[spec.file_key]
+            with Image.open(path) as image:
+                label = np.asarray(image)
+            weak = corrupt_label_file(label, spec.corruption, rate, num_classes, np.random.default_rng([seed, index]),
+                                      mode)
+            path.write_bytes(encode_png(weak))
+        meta["ssnerf_weak_labels"] = {"property": spec.name, "corruption": spec.corruption, "rate": rate,
+                                      "mode": mode, "seed": seed, "clean": str(clean.resolve())}
+        (folder / "transforms.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return destination / "transforms.json"
+
+
+@dataclass
+class AutoLabelStudy(StudyConfig):
+    """Weak labels (clean ones corrupted per view) against SS-NeRF trained on them, both scored on clean labels."""
+
+    target: str = "semantics"
+    """The property given weak labels."""
+    rates: Tuple[float, ...] = ()
+    """Corruption rates (default per corruption: semantics 0.1 0.3 0.5 of the pixels; normals and shading a mean
+    change of 0.02 0.05 0.1; edges and keypoints 0.2 0.4 0.6 of the responses dropped and as many added)."""
+    mode: Literal["pixels", "regions"] = "pixels"
+    """Semantics only: pixel-wise noise or whole-region class swaps."""
+    seed: int = 0
+    """Seed of the corruptions (frame i uses (seed, i))."""
+
+    name = "autolabel"
+    scope = "Metrics against the clean labels at each scene's training and test views, computed as `ns-eval` does."
+
+    def chosen_rates(self) -> Tuple[float, ...]:
+        return self.rates or DEFAULT_RATES[REGISTRY[self.target].corruption]
+
+    def run(self) -> Results:
+        """Weak copies, trained models and scores for every scene and rate; then the report."""
+        start = time.time()
+        spec = REGISTRY[self.target]
+        if spec.corruption == "none":
+            raise ValueError(f"{self.target} has no weak-label corruption; choose a labelled property")
+        config = self.benchmark_config()
+        config.output.mkdir(parents=True, exist_ok=True)
+        clean_scenes = list(config.scenes) or generated_scenes(config)
+        results: Results = {}
+        for clean in clean_scenes:
+            for rate in self.chosen_rates():
+                suffix = f"-{self.mode}" if spec.corruption == "classes" else ""
+                name = f"{clean.name}-{self.target}-{rate:g}{suffix}"
+                weak = config.output / "weak" / name
+                if not (weak / "transforms.json").is_file():
+                    make_weak_dataset(clean, weak, spec, rate, self.mode, self.seed)
+                bench = SceneBenchmark(config, weak, name)
+                run = ModelRun(single(self.target), (self.target,))
+                trained = bench.train_and_score(run)
+                results.setdefault(clean.name, {})[f"{rate:g}"] = {**self.score(clean, weak, bench, run, spec),
+                                                                    "train_seconds": trained.get("train_seconds"),
+                                                                    "seed": trained.get("seed")}
+        runs = {scene: {rate: {key: values.get(key) for key in ("train_seconds", "seed")}
+                        for rate, values in by_rate.items()} for scene, by_rate in results.items()}
+        write_study_report(self, results, runs, time.time() - start)
+        return results
+
+    def score(self, clean: Path, weak: Path, bench: SceneBenchmark, run: ModelRun,
+              spec: PropertySpec) -> Dict[str, Any]:
+        """The property's headline metric of the weak labels and of the renders, against clean labels (cached)."""
+        cache = bench.folder / run.name / "autolabel.json"
+        if cache.is_file():
+            return json.loads(cache.read_text())
+        key = headline(spec.name)[0]
+        model = bench.load(run.name).model
+        scores: Dict[str, Any] = {}
+        for split, label in (("train", "training views"), ("test", "test views")):
+            truth = SSNeRFDataset(SSNeRFDataParserConfig(data=clean).setup().get_dataparser_outputs(split))
+            weak_set = SSNeRFDataset(SSNeRFDataParserConfig(data=weak).setup().get_dataparser_outputs(split))
+            classes = truth.num_classes
+
+            def weak_labels(cameras, index, weak_set=weak_set, classes=classes):
+                return {spec.name: spec.kind.label_as_prediction(spec.label(weak_set[index], classes), classes)}
+
+            def rendered(cameras, index):
+                outputs = model.render_camera(cameras[index : index + 1].to(model.device))  # type: ignore
+                return {spec.name: outputs[spec.prediction_key].cpu()}
+
+            CONSOLE.print(f"[dim]{weak.name}: scoring weak labels and renders on the clean {label}")
+            scores[f"weak labels, {label}"] = score_predictor(weak_labels, truth, [spec], classes)[key]
+            scores[f"SS-NeRF, {label}"] = score_predictor(rendered, truth, [spec], classes)[key]
+        cache.write_text(json.dumps(scores, indent=2))
+        return scores
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        rows = []
+        for rate in (f"{rate:g}" for rate in self.chosen_rates()):
+            for scene, by_rate in [*results.items(), ("average", None)]:
+                row: Dict[str, Any] = {"row": f"rate {rate} ({scene})"}
+                for column in COLUMNS:
+                    values = [by_rate[rate][column]] if by_rate else [r[rate][column] for r in results.values()]
+                    row[column] = average(values)
+                rows.append(row)
+        text = (f"{property_title(self.target)} against the clean labels; weak labels: "
+                f"{REGISTRY[self.target].corruption} corruption"
+                + (f" ({self.mode})" if REGISTRY[self.target].corruption == "classes" else "") + "\n\n"
+                + markdown(rows, list(COLUMNS), list(COLUMNS), 4))
+        return text, {"autolabel": rows, "target": self.target, "rates": list(self.chosen_rates())}

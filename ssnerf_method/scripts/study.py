@@ -1,0 +1,27 @@
+"""`ssnerf-study`: the paper's studies, one subcommand each (`experiments/studies.py`, `experiments/autolabel.py`)."""
+
+from __future__ import annotations
+
+from typing import Union
+
+import tyro
+from typing_extensions import Annotated
+
+from ssnerf_method.experiments.autolabel import AutoLabelStudy
+from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy
+
+Study = Union[
+    Annotated[BranchStudy, tyro.conf.subcommand("branches")],
+    Annotated[RGBStudy, tyro.conf.subcommand("rgb")],
+    Annotated[MultiTaskStudy, tyro.conf.subcommand("multitask")],
+    Annotated[AutoLabelStudy, tyro.conf.subcommand("autolabel")],
+]
+
+
+def entrypoint() -> None:
+    """Console script `ssnerf-study`."""
+    tyro.cli(Study).run()  # type: ignore[union-attr]
+
+
+if __name__ == "__main__":
+    entrypoint()
