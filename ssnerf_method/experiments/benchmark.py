@@ -61,26 +61,33 @@ class ModelRun:
 
 
 @dataclass
-class BenchmarkConfig:
-    """Train and score SS-NeRF and the paper's two baselines on scenes; write Table 1, Table 2-left and figures."""
+class ScenesRunsConfig:
+    """What `ssnerf-benchmark` and every `ssnerf-study` share: the scenes, the architecture, the output folder of the
+    runs, the steps per model, and --quick."""
 
     scenes: Tuple[Path, ...] = ()
     """Datasets in the SS-NeRF format. Default: two generated default scenes (seeds 0 and 1) in OUTPUT/scenes."""
     method: Literal["ssnerf-lite", "ssnerf"] = "ssnerf-lite"
     """Architecture of every trained model (the NeRF too: the same model with RGB only)."""
     output: Path = Path("benchmark_report")
-    """Folder for the report, the figures and every run (resumable)."""
+    """Folder for the reports, the figures and every run (resumable; the benchmark and the studies share runs)."""
     steps: Optional[int] = None
     """Training steps per model (default: 1000 for ssnerf-lite, 20000 for ssnerf)."""
+    quick: bool = False
+    """A few minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not
+    meaningful; the whole pipeline runs."""
+
+
+@dataclass
+class BenchmarkConfig(ScenesRunsConfig):
+    """Train and score SS-NeRF and the paper's two baselines on scenes; write Table 1, Table 2-left and figures."""
+
     properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
     """Properties benchmarked (each needs labels in the scenes)."""
     all_properties_model: bool = True
     """Also train one model on all properties (an extra row)."""
     figure_view: int = 0
     """Index of the test view shown in each scene's figure."""
-    quick: bool = False
-    """A few minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not
-    meaningful; the whole pipeline runs."""
     heuristic: HeuristicBaselineConfig = field(default_factory=HeuristicBaselineConfig)
     hybrid: HybridBaselineConfig = field(default_factory=HybridBaselineConfig)
 

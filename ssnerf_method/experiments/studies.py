@@ -21,7 +21,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Literal, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
@@ -32,6 +32,7 @@ from ssnerf_method.experiments.benchmark import (
     BenchmarkConfig,
     ModelRun,
     SceneBenchmark,
+    ScenesRunsConfig,
     generated_scenes,
     quick_config,
 )
@@ -56,19 +57,8 @@ def together(names: Tuple[str, ...]) -> str:
 
 
 @dataclass
-class StudyConfig:
+class StudyConfig(ScenesRunsConfig):
     """What every study shares: scenes, architecture, output folder, steps and --quick."""
-
-    scenes: Tuple[Path, ...] = ()
-    """Datasets in the SS-NeRF format. Default: two generated default scenes (seeds 0 and 1) in OUTPUT/scenes."""
-    method: Literal["ssnerf-lite", "ssnerf"] = "ssnerf-lite"
-    """Architecture of every trained model."""
-    output: Path = Path("benchmark_report")
-    """Folder for the reports and every run (shared with `ssnerf-benchmark`; resumable)."""
-    steps: Optional[int] = None
-    """Training steps per model (default: 1000 for ssnerf-lite, 20000 for ssnerf)."""
-    quick: bool = False
-    """Minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not meaningful."""
 
     name = "study"
     scope = "Metrics on each scene's test split, as `ns-eval` computes them."
