@@ -143,11 +143,11 @@ class FixedSampling(RaySampling):
 
 
 def tiny_model(properties=("semantics", "normals", "shading"), **overrides):
-    config = SSNeRFModelConfig(
-        properties=properties, encoder="hashgrid", grid_levels=2, grid_max_res=16, grid_log2_hashmap_size=8,
-        grid_hidden_dim=16, grid_feature_dim=8, decoder_width=16, num_coarse_samples=4, num_fine_samples=4,
-        density_noise=0.0, **overrides,
+    settings = dict(
+        encoder="hashgrid", grid_levels=2, grid_max_res=16, grid_log2_hashmap_size=8, grid_hidden_dim=16,
+        grid_feature_dim=8, decoder_width=16, num_coarse_samples=4, num_fine_samples=4, density_noise=0.0,
     )
+    config = SSNeRFModelConfig(properties=properties, **{**settings, **overrides})  # type: ignore[arg-type]
     model = config.setup(
         scene_box=SceneBox(aabb=torch.tensor([[-1.0, -1.0, -1.0], [1.0, 1.0, 1.0]])),
         num_train_data=1,

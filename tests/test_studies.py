@@ -1,6 +1,6 @@
-"""`ssnerf-study branches|rgb|multitask` end to end with --quick in one output folder: each writes its table with the
-paper's rows and columns, the runs carry their overrides into the trained model, runs are shared between studies by
-name, and a second call retrains nothing."""
+"""`ssnerf-study` end to end with --quick: each study writes its table with the paper's rows and columns, the runs
+carry their overrides into the trained model, runs are shared between studies by name, and a second call retrains
+nothing."""
 
 from __future__ import annotations
 
@@ -15,8 +15,10 @@ from PIL import Image
 from nerfstudio.utils.eval_utils import eval_setup
 
 from ssnerf_method.experiments import benchmark
+from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
+from ssnerf_method.experiments.transfer import TransferStudy
 
 
 def test_run_names_follow_the_trained_set() -> None:
@@ -89,3 +91,51 @@ def test_quick_autolabel_scores_weak_labels_and_renders_on_clean_labels(tmp_path
     assert (clean_ids != weak_ids).mean() == pytest.approx(0.4, abs=0.01)  # the clean scene itself is untouched
     rows = json.loads((output / "study_autolabel.json").read_text())["tables"]["autolabel"]
     assert [row["row"] for row in rows][:3] == ["rate 0 (seed_0)", "rate 0 (seed_1)", "rate 0 (average)"]
+    assert (output / "figure_autolabel_semantics.png").is_file()
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_quick_transfer_trains_the_target_on_k_views_from_each_source(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    output = tmp_path / "transfer"
+    results = TransferStudy(quick=True, output=output, target="shading", sources=("semantics",), views=3).run()
+    assert set(results) == {"seed_0", "seed_1"} and set(results["seed_0"]) == {"Limited Views", "SL → SH"}
+    report = json.loads((output / "study_transfer.json").read_text())
+    rows = report["tables"]["table5"]
+    assert [row["row"] for row in rows] == ["Limited Views", "SL → SH"]
+    assert all(row[column] is not None for row in rows for column in ("seed_0", "seed_1", "average"))
+    views = report["tables"]["train_views"]["seed_0"]
+    assert len(views) == 3 and all(name in (output / "study_transfer.md").read_text() for name in views)
+    # the transferred run trained on the k views and started from the source model's final checkpoint
+    run = output / "runs" / "seed_0-3views" / "ssnerf-shading-from-semantics" / "ssnerf-lite" / "run" / "config.yml"
+    _, pipeline, _, _ = eval_setup(run, test_mode="test")
+    source = output / "runs" / "seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "run" / "nerfstudio_models"
+    assert pipeline.model.config.encoder_init == source / "step-000000029.ckpt"
+    assert [Path(name).name for name in pipeline.datamanager.train_dataset.image_filenames] == [
+        Path(name).name for name in views]
+    assert report["runs"]["seed_0"]["SL → SH"]["source_run"] == "ssnerf-semantics"
+    assert (output / "figure_transfer_seed_0.png").is_file()
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_quick_augmentation_trains_task_networks_on_ground_truth_and_renders(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    output = tmp_path / "augmentation"
+    results = AugmentationStudy(quick=True, output=output, properties=("semantics", "normals")).run()
+    assert set(results) == {"seed_0", "seed_1"} and set(results["seed_0"]) == set(SETTINGS)
+    assert all(0.0 <= results[scene][setting]["semantics"] <= 1.0 for scene in results for setting in SETTINGS)
+    report = json.loads((output / "study_augmentation.json").read_text())
+    assert [row["row"] for row in report["tables"]["table6"]] == list(SETTINGS)
+    renders = output / "augmentation" / "renders" / "seed_0"
+    same = json.loads((renders / "normals-training-poses" / "transforms.json").read_text())
+    novel = json.loads((renders / "normals-novel-poses" / "transforms.json").read_text())
+    train = len(json.loads((output / "scenes" / "seed_0" / "transforms.json").read_text())["train_filenames"])
+    assert len(same["frames"]) == train and len(novel["frames"]) == train - 1
+    assert novel["frames"][0]["ssnerf_source"]["fraction"] == 0.5
+    networks = report["runs"]["task_networks"]
+    ground_truth = networks["normals: GT"]["training_images"]
+    assert ground_truth == 2 * train  # both scenes pooled
+    assert networks["normals: SS-NeRF"]["training_images"] == ground_truth
+    assert networks["normals: GT + SS-NeRF"]["training_images"] == 2 * ground_truth
+    assert networks["normals: GT + SS-NeRF-N"]["training_images"] == ground_truth + 2 * (train - 1)
+    assert (output / "figure_augmentation.png").is_file()

@@ -10,7 +10,7 @@ that five networks train on a CPU in about a minute for the default scene.
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Callable, Dict, List, Optional, Sequence
+from typing import Callable, Dict, List, Optional, Sequence, Union
 
 import torch
 import torch.nn.functional as F
@@ -79,13 +79,19 @@ class HybridBaseline:
     """One trained encoder-decoder per property; predicts properties from (rendered) RGB images."""
 
     def __init__(
-        self, train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int,
+        self, train: Union[SSNeRFDataset, Sequence[SSNeRFDataset]], specs: Sequence[PropertySpec], num_classes: int,
         config: Optional[HybridBaselineConfig] = None,
     ) -> None:
+        """`train`: the views to learn from; several datasets (of one image size) are pooled, as the data-augmentation
+        study pools ground truth and SS-NeRF renders."""
         self.config = config or HybridBaselineConfig()
         self.specs = [annotator_spec(spec) for spec in specs if spec.file_key is not None]
         self.num_classes = num_classes
-        items = [train[index] for index in range(len(train))]
+        datasets = [train] if isinstance(train, SSNeRFDataset) else list(train)
+        items = [dataset[index] for dataset in datasets for index in range(len(dataset))]
+        sizes = {tuple(item["image"].shape[:2]) for item in items}
+        if len(sizes) != 1:
+            raise ValueError(f"The annotators train on images of one size; these datasets have {sorted(sizes)} (H, W).")
         self.images = torch.stack([item["image"][..., :3] for item in items]).permute(0, 3, 1, 2)
         self.labels = {spec.name: torch.stack([spec.label(item, num_classes) for item in items]) for spec in self.specs}
         self.networks = nn.ModuleDict({

@@ -25,11 +25,13 @@ from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder, encode_png
 from ssnerf_method.evaluation.scoring import score_predictor
-from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes
+from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
+from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, SceneBenchmark, generated_scenes
 from ssnerf_method.experiments.report import average, headline, markdown, property_title
 from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
 from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
 from ssnerf_method.properties import REGISTRY, PropertySpec
+from ssnerf_method.rendering.palette import semantic_palette
 
 COLUMNS = ("weak labels, training views", "SS-NeRF, training views", "weak labels, test views", "SS-NeRF, test views")
 
@@ -70,6 +72,8 @@ class AutoLabelStudy(StudyConfig):
     """Semantics only: pixel-wise noise or whole-region class swaps."""
     seed: int = 0
     """Seed of the corruptions (frame i uses (seed, i))."""
+    figure_view: int = 0
+    """Training view of the first scene shown in the figure."""
 
     name = "autolabel"
     scope = "Metrics against the clean labels at each scene's training and test views, computed as `ns-eval` does."
@@ -89,8 +93,7 @@ class AutoLabelStudy(StudyConfig):
         results: Results = {}
         for clean in clean_scenes:
             for rate in self.chosen_rates():
-                suffix = f"-{self.mode}" if spec.corruption == "classes" else ""
-                name = f"{clean.name}-{self.target}-{rate:g}{suffix}"
+                name = self.weak_name(clean, rate)
                 weak = config.output / "weak" / name
                 if not (weak / "transforms.json").is_file():
                     make_weak_dataset(clean, weak, spec, rate, self.mode, self.seed)
@@ -100,10 +103,34 @@ class AutoLabelStudy(StudyConfig):
                 results.setdefault(clean.name, {})[f"{rate:g}"] = {**self.score(clean, weak, bench, run, spec),
                                                                     "train_seconds": trained.get("train_seconds"),
                                                                     "seed": trained.get("seed")}
+        self.figure(clean_scenes[0], config, spec)
         runs = {scene: {rate: {key: values.get(key) for key in ("train_seconds", "seed")}
                         for rate, values in by_rate.items()} for scene, by_rate in results.items()}
         write_study_report(self, results, runs, time.time() - start)
         return results
+
+    def weak_name(self, clean: Path, rate: float) -> str:
+        suffix = f"-{self.mode}" if REGISTRY[self.target].corruption == "classes" else ""
+        return f"{clean.name}-{self.target}-{rate:g}{suffix}"
+
+    def figure(self, clean: Path, config: BenchmarkConfig, spec: PropertySpec) -> Path:
+        """Fig. 4, measured: for one training view, per rate the weak label, SS-NeRF's render and the clean label."""
+        truth = SSNeRFDataset(SSNeRFDataParserConfig(data=clean).setup().get_dataparser_outputs("train"))
+        palette = semantic_palette(truth.num_classes, truth.metadata.get("semantic_colors"))
+        index = min(self.figure_view, len(truth) - 1)
+        rows = {}
+        for rate in self.chosen_rates():
+            weak = config.output / "weak" / self.weak_name(clean, rate)
+            weak_set = SSNeRFDataset(SSNeRFDataParserConfig(data=weak).setup().get_dataparser_outputs("train"))
+            model = SceneBenchmark(config, weak, weak.name).load(single(self.target)).model
+            outputs = model.render_camera(truth.cameras[index : index + 1].to(model.device))  # type: ignore
+            rows[f"rate {rate:g}"] = {"weak": shown_label(spec, weak_set[index], truth.num_classes, palette),
+                                      "render": shown(spec, outputs[spec.prediction_key], palette),
+                                      "clean": shown_label(spec, truth[index], truth.num_classes, palette)}
+        path = config.output / f"figure_autolabel_{self.target}.png"
+        image_grid(path, [("weak", "weak label"), ("render", "SS-NeRF render"), ("clean", "clean label")], rows,
+                   f"{clean.name}, training view {index}: {self.target} learnt from weak labels")
+        return path
 
     def score(self, clean: Path, weak: Path, bench: SceneBenchmark, run: ModelRun,
               spec: PropertySpec) -> Dict[str, Any]:

@@ -30,7 +30,7 @@ from nerfstudio.scripts.train import main as train_main
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from ssnerf_method.evaluation.figures import display_image, property_grid
+from ssnerf_method.evaluation.figures import property_grid, shown, shown_label
 from ssnerf_method.evaluation.heuristic import DepthSource, HeuristicBaseline, HeuristicBaselineConfig
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
@@ -159,6 +159,10 @@ class SceneBenchmark:
     def config_path(self, run: str) -> Path:
         return self.folder / run / self.config.method / "run" / "config.yml"
 
+    def checkpoint(self, run: str) -> Path:
+        """The final checkpoint of a run (what `ns-eval` loads)."""
+        return self.config_path(run).parent / "nerfstudio_models" / f"step-{self.steps - 1:09d}.ckpt"
+
     def train_and_score(self, run: ModelRun) -> Dict[str, float]:
         """Train one model unless its metrics exist; return its test-split metrics (with `train_seconds`, the
         wall-clock time of its training, None if an earlier call trained it, and nerfstudio's `seed`)."""
@@ -167,9 +171,8 @@ class SceneBenchmark:
             CONSOLE.print(f"[dim]{self.name}/{run.name}: done earlier, reusing {result}")
             return json.loads(result.read_text())
         trainer = self.trainer_config(run)
-        checkpoint = trainer.get_checkpoint_dir() / f"step-{self.steps - 1:09d}.ckpt"
         seconds = None  # trained in an earlier, interrupted call
-        if not checkpoint.is_file():
+        if not self.checkpoint(run.name).is_file():
             what = ", ".join(run.properties) or "RGB only"
             CONSOLE.rule(f"{self.name}: training {run.name} ({what}) for {self.steps} steps")
             start = time.time()
@@ -251,24 +254,21 @@ class SceneBenchmark:
         rgb_spec = REGISTRY["rgb"]
         columns = [rgb_spec, *specs]
 
-        def shown(spec: PropertySpec, prediction: torch.Tensor) -> np.ndarray:
-            return display_image(spec.display(prediction.cpu(), palette))
-
-        truth = {spec.name: shown(spec, spec.kind.label_as_prediction(spec.label(item, num_classes), num_classes))
-                 for spec in columns}
+        truth = {spec.name: shown_label(spec, item, num_classes, palette) for spec in columns}
         ssnerf: Dict[str, Optional[np.ndarray]] = {}
         for spec in specs:
             outputs = self.load(f"ssnerf-{spec.name}").model.render_camera(cameras[index : index + 1])
-            ssnerf[spec.name] = shown(spec, outputs[spec.prediction_key])
+            ssnerf[spec.name] = shown(spec, outputs[spec.prediction_key], palette)
         rgb = rgb_renderer(nerf)(cameras, index)
-        ssnerf["rgb"] = shown(rgb_spec, rgb)
+        ssnerf["rgb"] = shown(rgb_spec, rgb, palette)
         heuristic = self.heuristic(nerf, specs, num_classes).predict_view(cameras, index)
         hybrid = self.hybrid(nerf, specs, num_classes).predict_image(rgb)
         rows = {
             "ground truth": truth,
             "SS-NeRF": ssnerf,
-            "Heuristic": {spec.name: shown(spec, heuristic[spec.name]) for spec in specs},
-            "Hybrid": {"rgb": shown(rgb_spec, rgb), **{spec.name: shown(spec, hybrid[spec.name]) for spec in specs}},
+            "Heuristic": {spec.name: shown(spec, heuristic[spec.name], palette) for spec in specs},
+            "Hybrid": {"rgb": shown(rgb_spec, rgb, palette),
+                       **{spec.name: shown(spec, hybrid[spec.name], palette) for spec in specs}},
         }
         property_grid(path, columns, rows, f"{self.name}, test view {index} (RGB: NeRF render)")
         return path

@@ -7,7 +7,8 @@ Everything per property (heads, rendering, loss, metric, display) is read from t
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Literal, Tuple, Type
+from pathlib import Path
+from typing import Dict, List, Literal, Optional, Tuple, Type
 
 import torch
 from torch import Tensor, nn
@@ -28,6 +29,7 @@ from ssnerf_method.data.dataset import DEPTH_KEY
 from ssnerf_method.evaluation.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
 from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField, add_pose_metadata
+from ssnerf_method.model.encoder_transfer import load_encoders
 from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
@@ -115,6 +117,9 @@ class SSNeRFModelConfig(ModelConfig):
     """Far plane, in the dataparser's scaled units (cameras lie within [-1, 1] after scaling)."""
     implementation: Literal["tcnn", "torch"] = "torch"
     """Hash grid implementation (tcnn needs tiny-cuda-nn on CUDA)."""
+    encoder_init: Optional[Path] = None
+    """Checkpoint (.ckpt) of a trained SS-NeRF of the same method whose F_enc initialises this one's at the first step;
+    decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
 
 
 class SSNeRFModel(Model):
@@ -193,10 +198,20 @@ class SSNeRFModel(Model):
         return self.sampling.param_groups()
 
     def get_training_callbacks(self, training_callback_attributes: TrainingCallbackAttributes) -> List[TrainingCallback]:
-        return [
+        callbacks = [
             TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.sampling.before_training_step),
             TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self.sampling.after_training_step),
         ]
+        if self.config.encoder_init is not None:  # at step 0 only: a resumed run keeps its own trained weights
+            callbacks.append(TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.init_encoders,
+                                              iters=(0,)))
+        return callbacks
+
+    def init_encoders(self, step: int) -> None:
+        """Copy F_enc from `encoder_init` (knowledge transfer); the trainer calls it before step 0."""
+        assert self.config.encoder_init is not None
+        loaded = load_encoders(self, self.config.encoder_init)
+        CONSOLE.print(f"F_enc ({', '.join(loaded)}) initialised from {self.config.encoder_init}")
 
     def _render_level(self, level: SampleLevel, context: RenderContext, prefix: str) -> Dict[str, Tensor]:
         """Render every property of one sample level into `prefix + prediction_key` outputs."""

@@ -1,0 +1,157 @@
+"""`ssnerf-study transfer`: knowledge transfer between properties with limited views (the paper's Table 5).
+
+Per scene, a source property's SS-NeRF is trained on all training views (the benchmark's run, reused), and the target
+property's SS-NeRF is then trained on only k training views (chosen evenly along the trajectory), once from scratch
+("Limited Views") and once per source with F_enc initialised from the source model (`encoder_init`,
+`model/encoder_transfer.py`). Both are scored on the full test split.
+
+The k-view dataset is a `transforms.json` under `OUTPUT/limited/` that lists every frame of the scene (so nerfstudio
+orients and scales the poses exactly as for the source model, whose F_enc lives in that frame) with absolute paths
+into the scene, and names only the k views as training frames. The scene itself is not touched.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Tuple
+
+import numpy as np
+
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
+from ssnerf_method.data.dataset import SSNeRFDataset
+from ssnerf_method.data.io import StagedOutputFolder
+from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
+from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes
+from ssnerf_method.experiments.report import average, headline, markdown, property_title
+from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
+from ssnerf_method.properties import REGISTRY
+from ssnerf_method.rendering.palette import semantic_palette
+
+LIMITED = "Limited Views"
+"""Row of the target trained from scratch on the k views."""
+PATH_KEYS = ("file_path", "depth_file_path", "mask_path")
+"""Per-frame path keys of nerfstudio's format (the registry adds each property's)."""
+
+
+def evenly_spaced(names: List[str], k: int) -> List[str]:
+    """k of `names` (in trajectory order), evenly spaced from the first to the last."""
+    if not 1 <= k <= len(names):
+        raise ValueError(f"--views {k}: the scene has {len(names)} training views; choose 1 to {len(names)}.")
+    return [names[int(i)] for i in np.linspace(0, len(names) - 1, k).round()]
+
+
+def make_limited_dataset(scene: Path, destination: Path, k: int) -> List[str]:
+    """Write `destination/transforms.json`: the scene's frames with k evenly spaced training views and the scene's
+    own test split. Returns the k training images (paths relative to the scene)."""
+    parser = SSNeRFDataParserConfig(data=scene).setup()
+    train = [Path(name) for name in parser.get_dataparser_outputs("train").image_filenames]
+    test = [Path(name) for name in parser.get_dataparser_outputs("test").image_filenames]
+    root = scene.resolve()
+    chosen = evenly_spaced([str(name.resolve().relative_to(root)) for name in train], k)
+    meta = json.loads((scene / "transforms.json").read_text())
+    keys = {*PATH_KEYS, *(spec.file_key for spec in REGISTRY.values() if spec.file_key is not None)}
+    for frame in meta["frames"]:
+        frame.update({key: str(root / frame[key]) for key in keys if key in frame})
+    meta["train_filenames"] = [str(root / name) for name in chosen]
+    meta["val_filenames"] = meta["test_filenames"] = [str(name.resolve()) for name in test]
+    meta["ssnerf_limited_views"] = {"scene": str(root), "views": k, "train_filenames": chosen}
+    with StagedOutputFolder(destination, overwrite=True) as folder:
+        (folder / "transforms.json").write_text(json.dumps(meta, indent=2) + "\n")
+    return chosen
+
+
+@dataclass
+class TransferStudy(StudyConfig):
+    """Table 5: the target property on k views, from scratch and with F_enc transferred from each source."""
+
+    target: str = "shading"
+    """The property learnt from limited views (the paper's is SH)."""
+    sources: Tuple[str, ...] = ("semantics", "normals", "keypoints", "edges")
+    """Properties whose all-view SS-NeRF gives F_enc."""
+    views: int = 6
+    """Training views of the target (evenly spaced along the training trajectory)."""
+    figure_view: int = 0
+    """Test view shown in each scene's figure."""
+
+    name = "transfer"
+    scope = "Target trained on k training views; metrics on each scene's full test split, as `ns-eval` computes them."
+
+    def row(self, source: str) -> str:
+        return f"{REGISTRY[source].short} → {REGISTRY[self.target].short}"
+
+    def target_run(self, source: str = "") -> ModelRun:
+        if not source:
+            return ModelRun(single(self.target), (self.target,))
+        return ModelRun(f"{single(self.target)}-from-{source}", (self.target,))
+
+    def run(self) -> Results:
+        """Source models (all views), the k-view target from scratch and from each source; report and figures."""
+        start = time.time()
+        config = self.benchmark_config()
+        config.output.mkdir(parents=True, exist_ok=True)
+        scenes = list(config.scenes) or generated_scenes(config)
+        results: Results = {}
+        details: Dict[str, Any] = {}
+        self.chosen: Dict[str, List[str]] = {}
+        for scene in scenes:
+            full = SceneBenchmark(config, scene, scene.name)
+            limited_root = config.output / "limited" / f"{scene.name}-{self.views}views"
+            if not (limited_root / "transforms.json").is_file():
+                make_limited_dataset(scene, limited_root, self.views)
+            meta = json.loads((limited_root / "transforms.json").read_text())
+            self.chosen[scene.name] = meta["ssnerf_limited_views"]["train_filenames"]
+            limited = SceneBenchmark(config, limited_root, limited_root.name)
+            CONSOLE.print(f"[bold]transfer study, {scene.name}: {self.target} on {self.views} views from scratch")
+            runs = {LIMITED: (limited.train_and_score(self.target_run()), self.target_run(), {})}
+            for source in self.sources:
+                CONSOLE.print(f"[bold]transfer study, {scene.name}: {source} (all views), then {self.row(source)}")
+                source_run = ModelRun(single(source), (source,))
+                full.train_and_score(source_run)
+                overrides = {"encoder_init": full.checkpoint(source_run.name)}
+                run = ModelRun(self.target_run(source).name, (self.target,), overrides)
+                runs[self.row(source)] = (limited.train_and_score(run), run, {"source_run": source_run.name})
+            results[scene.name] = {row: metrics for row, (metrics, _, _) in runs.items()}
+            details[scene.name] = {row: {"run": f"{limited.folder.name}/{run.name}", "properties": list(run.properties),
+                                         "overrides": {key: str(value) for key, value in run.overrides.items()},
+                                         "train_seconds": metrics.get("train_seconds"), "seed": metrics.get("seed"),
+                                         **extra}
+                                   for row, (metrics, run, extra) in runs.items()}
+            self.figure(scene, limited, config.output / f"figure_transfer_{scene.name}.png")
+        write_study_report(self, results, details, time.time() - start)
+        return results
+
+    def figure(self, scene: Path, limited: SceneBenchmark, path: Path) -> Path:
+        """One test view: ground truth, the k-view target from scratch and each transferred one (RGB and target)."""
+        spec, rgb_spec = REGISTRY[self.target], REGISTRY["rgb"]
+        test = SSNeRFDataset(SSNeRFDataParserConfig(data=scene).setup().get_dataparser_outputs("test"))
+        index = min(self.figure_view, len(test) - 1)
+        palette = semantic_palette(test.num_classes, test.metadata.get("semantic_colors"))
+        item = test[index]
+        rows = {"ground truth": {key.name: shown_label(key, item, test.num_classes, palette)
+                                 for key in (rgb_spec, spec)}}
+        for title, source in [(LIMITED, ""), *((self.row(source), source) for source in self.sources)]:
+            model = limited.load(self.target_run(source).name).model
+            outputs = model.render_camera(test.cameras[index : index + 1].to(model.device))
+            rows[title] = {key.name: shown(key, outputs[key.prediction_key], palette) for key in (rgb_spec, spec)}
+        columns = [(rgb_spec.name, rgb_spec.short), (spec.name, spec.short)]
+        image_grid(path, columns, rows, f"{scene.name}, test view {index}: {self.target} from {self.views} views")
+        return path
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        key = headline(self.target)[0]
+        columns = [*results, "average"]
+        rows = []
+        for title in [LIMITED, *(self.row(source) for source in self.sources)]:
+            values = {scene: runs.get(title, {}).get(key) for scene, runs in results.items()}
+            rows.append({"row": title, **values, "average": average(list(values.values()))})
+        views = "\n".join(f"- {scene}: {', '.join(names)}" for scene, names in getattr(self, "chosen", {}).items())
+        text = (f"{property_title(self.target)} on the test views; the target sees {self.views} training views\n\n"
+                + markdown(rows, columns, columns, 4) + f"\n\nTraining views of the target:\n\n{views}\n\nFigures: "
+                + ", ".join(f"`figure_transfer_{scene}.png`" for scene in results))
+        return text, {"table5": rows, "target": self.target, "metric": key, "views": self.views,
+                      "train_views": getattr(self, "chosen", {})}
