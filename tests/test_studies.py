@@ -41,7 +41,9 @@ def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypa
         "F_dec^nv (seed_0)", "F_dec^nv (seed_1)", "F_dec^nv (average)"]
     assert all(row["semantics"] is not None and row["edges"] is not None for row in report["tables"]["table3"])
     assert report["runs"]["seed_0"]["ssnerf-semantics-on-v"]["overrides"] == {"branches": {"semantics": "v"}}
-    assert report["commit"] and report["runs"]["seed_0"]["ssnerf-edges"]["seed"] == 42
+    edges = report["runs"]["seed_0"]["ssnerf-edges"]
+    assert report["commit"] and edges["seed"] == 42 and edges["train_seconds"] > 0
+    assert Path(edges["config"]) == output / "runs" / "seed_0" / "ssnerf-edges" / "ssnerf-lite" / "run" / "config.yml"
     assert "| F_dec^nv (average) |" in (output / "study_branches.md").read_text()
     # the override reached the model: semantics is decoded by F_dec^v in that run
     config = output / "runs" / "seed_0" / "ssnerf-semantics-on-v" / "ssnerf-lite" / "run" / "config.yml"

@@ -34,7 +34,7 @@ from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes
 from ssnerf_method.experiments.report import average, headline, markdown, property_title
-from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
+from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.rendering.palette import semantic_palette
 
@@ -89,8 +89,8 @@ class AugmentationStudy(StudyConfig):
                 run = ModelRun(single(prop), (prop,))
                 CONSOLE.print(f"[bold]augmentation study, {scene.name}: {run.name} and its renders")
                 metrics = bench.train_and_score(run)
-                details[scene.name][run.name] = {"properties": [prop], "train_seconds": metrics.get("train_seconds"),
-                                                 "seed": metrics.get("seed")}
+                record = {key: metrics.get(key) for key in RUN_RECORD}
+                details[scene.name][run.name] = {"properties": [prop], **record}
                 data[prop].setdefault("ground truth", []).append(ground_truth)
                 for poses, between in RENDERS.items():
                     root = folder / "renders" / scene.name / f"{prop}-{poses.replace(' ', '-')}"

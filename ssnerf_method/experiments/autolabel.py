@@ -28,7 +28,7 @@ from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, SceneBenchmark, generated_scenes
 from ssnerf_method.experiments.report import average, headline, markdown, property_title
-from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
+from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
 from ssnerf_method.properties import REGISTRY, PropertySpec
 from ssnerf_method.rendering.palette import semantic_palette
@@ -101,10 +101,9 @@ class AutoLabelStudy(StudyConfig):
                 run = ModelRun(single(self.target), (self.target,))
                 trained = bench.train_and_score(run)
                 results.setdefault(clean.name, {})[f"{rate:g}"] = {**self.score(clean, weak, bench, run, spec),
-                                                                    "train_seconds": trained.get("train_seconds"),
-                                                                    "seed": trained.get("seed")}
+                                                                    **{key: trained.get(key) for key in RUN_RECORD}}
         self.figure(clean_scenes[0], config, spec)
-        runs = {scene: {rate: {key: values.get(key) for key in ("train_seconds", "seed")}
+        runs = {scene: {rate: {key: values.get(key) for key in RUN_RECORD}
                         for rate, values in by_rate.items()} for scene, by_rate in results.items()}
         write_study_report(self, results, runs, time.time() - start)
         return results

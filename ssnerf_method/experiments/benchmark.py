@@ -164,25 +164,33 @@ class SceneBenchmark:
         return self.config_path(run).parent / "nerfstudio_models" / f"step-{self.steps - 1:09d}.ckpt"
 
     def train_and_score(self, run: ModelRun) -> Dict[str, float]:
-        """Train one model unless its metrics exist; return its test-split metrics (with `train_seconds`, the
-        wall-clock time of its training, None if an earlier call trained it, and nerfstudio's `seed`)."""
+        """Train one model unless its metrics exist; return its test-split metrics, with `train_seconds` (the
+        wall-clock time of its training), nerfstudio's `seed` and `config` (the run's config.yml)."""
         result = self.folder / run.name / "metrics.json"
         if result.is_file():
             CONSOLE.print(f"[dim]{self.name}/{run.name}: done earlier, reusing {result}")
-            return json.loads(result.read_text())
-        trainer = self.trainer_config(run)
-        seconds = None  # trained in an earlier, interrupted call
-        if not self.checkpoint(run.name).is_file():
-            what = ", ".join(run.properties) or "RGB only"
-            CONSOLE.rule(f"{self.name}: training {run.name} ({what}) for {self.steps} steps")
-            start = time.time()
-            train_main(trainer)
-            seconds = round(time.time() - start, 1)
-        _, pipeline, _, _ = eval_setup(self.config_path(run.name), test_mode="test")
-        metrics = pipeline.get_average_eval_image_metrics()
-        metrics.update(train_seconds=seconds, seed=trainer.machine.seed)
-        result.write_text(json.dumps(metrics, indent=2))
-        return metrics
+            metrics = json.loads(result.read_text())
+        else:
+            trainer = self.trainer_config(run)
+            seconds = None
+            if not self.checkpoint(run.name).is_file():
+                what = ", ".join(run.properties) or "RGB only"
+                CONSOLE.rule(f"{self.name}: training {run.name} ({what}) for {self.steps} steps")
+                start = time.time()
+                train_main(trainer)
+                seconds = round(time.time() - start, 1)
+            _, pipeline, _, _ = eval_setup(self.config_path(run.name), test_mode="test")
+            metrics = pipeline.get_average_eval_image_metrics()
+            metrics.update(train_seconds=seconds, seed=trainer.machine.seed)
+            result.write_text(json.dumps(metrics, indent=2))
+        config, checkpoint = self.config_path(run.name), self.checkpoint(run.name)
+        if metrics.get("train_seconds") is None and config.is_file() and checkpoint.is_file():
+            # trained by an interrupted call or an older version: nerfstudio writes config.yml as training starts
+            # and the final checkpoint as it ends
+            metrics["train_seconds"] = round(checkpoint.stat().st_mtime - config.stat().st_mtime, 1)
+        if metrics.get("seed") is None:
+            metrics["seed"] = self.trainer_config(run).machine.seed
+        return {**metrics, "config": str(config)}
 
     def load(self, run: str) -> Pipeline:
         return eval_setup(self.config_path(run), test_mode="test")[1]

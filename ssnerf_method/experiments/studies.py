@@ -41,6 +41,8 @@ from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 
 Results = Dict[str, Dict[str, Dict[str, Any]]]
 """scene -> run name -> that run's test-split metrics."""
+RUN_RECORD = ("train_seconds", "seed", "config")
+"""What a report says of every run besides its metrics: training wall-clock time, seed and config.yml."""
 
 
 def single(name: str) -> str:
@@ -239,8 +241,7 @@ def run_study(study: StudyConfig) -> Results:
             CONSOLE.print(f"[bold]{study.name} study, {scene.name}: model {number}/{len(runs)}: {run.name}")
             results[scene.name][run.name] = bench.train_and_score(run)
     details = {scene: {run.name: {"properties": list(run.properties), "overrides": run.overrides,
-                                  "train_seconds": results[scene][run.name].get("train_seconds"),
-                                  "seed": results[scene][run.name].get("seed")} for run in runs}
+                                  **{key: results[scene][run.name].get(key) for key in RUN_RECORD}} for run in runs}
                for scene in results}
     write_study_report(study, results, details, time.time() - start)
     return results

@@ -28,7 +28,7 @@ from ssnerf_method.data.io import StagedOutputFolder
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes
 from ssnerf_method.experiments.report import average, headline, markdown, property_title
-from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
+from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.properties import REGISTRY
 from ssnerf_method.rendering.palette import semantic_palette
 
@@ -118,8 +118,7 @@ class TransferStudy(StudyConfig):
             results[scene.name] = {row: metrics for row, (metrics, _, _) in runs.items()}
             details[scene.name] = {row: {"run": f"{limited.folder.name}/{run.name}", "properties": list(run.properties),
                                          "overrides": {key: str(value) for key, value in run.overrides.items()},
-                                         "train_seconds": metrics.get("train_seconds"), "seed": metrics.get("seed"),
-                                         **extra}
+                                         **{key: metrics.get(key) for key in RUN_RECORD}, **extra}
                                    for row, (metrics, run, extra) in runs.items()}
             self.figure(scene, limited, config.output / f"figure_transfer_{scene.name}.png")
         write_study_report(self, results, details, time.time() - start)
