@@ -60,6 +60,11 @@ class ModelRun:
     """`SSNeRFModelConfig` fields to set (e.g. {"branches": {"semantics": "v"}}, {"loss_weights": {"rgb": 0.0}})."""
 
 
+def default_method() -> Literal["ssnerf-lite", "ssnerf"]:
+    """The paper's model where there is a GPU to train it, the lite one elsewhere (as `ssnerf-demo`)."""
+    return "ssnerf" if torch.cuda.is_available() else "ssnerf-lite"
+
+
 @dataclass
 class ScenesRunsConfig:
     """What `ssnerf-benchmark` and every `ssnerf-study` share: the scenes, the architecture, the output folder of the
@@ -67,8 +72,9 @@ class ScenesRunsConfig:
 
     scenes: Tuple[Path, ...] = ()
     """Datasets in the SS-NeRF format. Default: two generated default scenes (seeds 0 and 1) in OUTPUT/scenes."""
-    method: Literal["ssnerf-lite", "ssnerf"] = "ssnerf-lite"
-    """Architecture of every trained model (the NeRF too: the same model with RGB only)."""
+    method: Literal["ssnerf-lite", "ssnerf"] = field(default_factory=default_method)
+    """Architecture of every trained model (the NeRF too: the same model with RGB only); default: the paper's
+    `ssnerf` on a GPU, `ssnerf-lite` on a CPU."""
     output: Path = Path("benchmark_report")
     """Folder for the reports, the figures and every run (resumable; the benchmark and the studies share runs)."""
     steps: Optional[int] = None
