@@ -69,6 +69,9 @@ def test_quick_benchmark_end_to_end_then_resumes(tmp_path: Path, monkeypatch) ->
     monkeypatch.setattr(benchmark, "train_main", refuse)
     monkeypatch.setattr(HybridBaseline, "fit", refuse)
     assert run(BenchmarkConfig(quick=True, output=output)) == results
+    # another step count is another training: the 30-step results are not passed off as its own
+    with pytest.raises(AssertionError, match="redone"):
+        run(BenchmarkConfig(quick=True, output=output, steps=31))
 
 
 def test_rendered_depth_is_z_depth() -> None:

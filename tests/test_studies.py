@@ -43,10 +43,11 @@ def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypa
     assert report["runs"]["seed_0"]["ssnerf-semantics-on-v"]["overrides"] == {"branches": {"semantics": "v"}}
     edges = report["runs"]["seed_0"]["ssnerf-edges"]
     assert report["commit"] and edges["seed"] == 42 and edges["train_seconds"] > 0
-    assert Path(edges["config"]) == output / "runs" / "seed_0" / "ssnerf-edges" / "ssnerf-lite" / "run" / "config.yml"
+    run = output / "runs" / "seed_0" / "ssnerf-edges" / "ssnerf-lite" / "30-steps"
+    assert Path(edges["config"]) == run / "config.yml"
     assert "| F_dec^nv (average) |" in (output / "study_branches.md").read_text()
     # the override reached the model: semantics is decoded by F_dec^v in that run
-    config = output / "runs" / "seed_0" / "ssnerf-semantics-on-v" / "ssnerf-lite" / "run" / "config.yml"
+    config = output / "runs" / "seed_0" / "ssnerf-semantics-on-v" / "ssnerf-lite" / "30-steps" / "config.yml"
     _, pipeline, _, _ = eval_setup(config, test_mode="test")
     decoders = pipeline.model.sampling.field_module.decoders
     assert "semantics" in decoders["v"].names and "nv" not in decoders
@@ -109,9 +110,10 @@ def test_quick_transfer_trains_the_target_on_k_views_from_each_source(tmp_path: 
     views = report["tables"]["train_views"]["seed_0"]
     assert len(views) == 3 and all(name in (output / "study_transfer.md").read_text() for name in views)
     # the transferred run trained on the k views and started from the source model's final checkpoint
-    run = output / "runs" / "seed_0-3views" / "ssnerf-shading-from-semantics" / "ssnerf-lite" / "run" / "config.yml"
+    run = output / "runs" / "seed_0-3views" / "ssnerf-shading-from-semantics" / "ssnerf-lite" / "30-steps"
+    run = run / "config.yml"
     _, pipeline, _, _ = eval_setup(run, test_mode="test")
-    source = output / "runs" / "seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "run" / "nerfstudio_models"
+    source = output / "runs" / "seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "30-steps" / "nerfstudio_models"
     assert pipeline.model.config.encoder_init == source / "step-000000029.ckpt"
     assert [Path(name).name for name in pipeline.datamanager.train_dataset.image_filenames] == [
         Path(name).name for name in views]
@@ -128,7 +130,7 @@ def test_quick_augmentation_trains_task_networks_on_ground_truth_and_renders(tmp
     assert all(0.0 <= results[scene][setting]["semantics"] <= 1.0 for scene in results for setting in SETTINGS)
     report = json.loads((output / "study_augmentation.json").read_text())
     assert [row["row"] for row in report["tables"]["table6"]] == list(SETTINGS)
-    renders = output / "augmentation" / "renders" / "seed_0"
+    renders = output / "augmentation" / "ssnerf-lite" / "30-steps" / "renders" / "seed_0"
     same = json.loads((renders / "normals-training-poses" / "transforms.json").read_text())
     novel = json.loads((renders / "normals-novel-poses" / "transforms.json").read_text())
     train = len(json.loads((output / "scenes" / "seed_0" / "transforms.json").read_text())["train_filenames"])

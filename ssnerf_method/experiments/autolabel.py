@@ -134,7 +134,7 @@ class AutoLabelStudy(StudyConfig):
     def score(self, clean: Path, weak: Path, bench: SceneBenchmark, run: ModelRun,
               spec: PropertySpec) -> Dict[str, Any]:
         """The property's headline metric of the weak labels and of the renders, against clean labels (cached)."""
-        cache = bench.folder / run.name / "autolabel.json"
+        cache = bench.run_dir(run.name) / "autolabel.json"
         if cache.is_file():
             return json.loads(cache.read_text())
         key = headline(spec.name)[0]

@@ -134,6 +134,9 @@ class SceneBenchmark:
         self.config, self.scene, self.name = config, scene, name
         self.folder = config.output / "runs" / name
         self.steps = config.steps or DEFAULT_STEPS[config.method]
+        self.tag = f"{self.steps}-steps"
+        """Run folders and cached results are per method and step count, so another --steps or --method on the same
+        --output trains afresh instead of reusing results of a different training."""
 
     def models(self) -> List[ModelRun]:
         """The RGB-only NeRF, one SS-NeRF per property and (optionally) the all-properties one."""
@@ -152,7 +155,7 @@ class SceneBenchmark:
             setattr(model, key, {**current, **value} if isinstance(current, dict) else deepcopy(value))
         trainer.output_dir = self.folder
         trainer.experiment_name = run.name
-        trainer.timestamp = "run"
+        trainer.timestamp = self.tag
         trainer.vis = "tensorboard"
         trainer.max_num_iterations = self.steps
         trainer.steps_per_save = self.steps
@@ -162,8 +165,12 @@ class SceneBenchmark:
             shrink_for_quick(trainer)
         return trainer
 
+    def run_dir(self, run: str) -> Path:
+        """Where nerfstudio writes a run (config.yml, nerfstudio_models/) and where its metrics are kept."""
+        return self.folder / run / self.config.method / self.tag
+
     def config_path(self, run: str) -> Path:
-        return self.folder / run / self.config.method / "run" / "config.yml"
+        return self.run_dir(run) / "config.yml"
 
     def checkpoint(self, run: str) -> Path:
         """The final checkpoint of a run (what `ns-eval` loads)."""
@@ -172,7 +179,7 @@ class SceneBenchmark:
     def train_and_score(self, run: ModelRun) -> Dict[str, float]:
         """Train one model unless its metrics exist; return its test-split metrics, with `train_seconds` (the
         wall-clock time of its training), nerfstudio's `seed` and `config` (the run's config.yml)."""
-        result = self.folder / run.name / "metrics.json"
+        result = self.run_dir(run.name) / "metrics.json"
         if result.is_file():
             CONSOLE.print(f"[dim]{self.name}/{run.name}: done earlier, reusing {result}")
             metrics = json.loads(result.read_text())
@@ -202,7 +209,7 @@ class SceneBenchmark:
         return eval_setup(self.config_path(run), test_mode="test")[1]
 
     def baseline(self, name: str, score: Callable[[], Dict[str, float]]) -> Dict[str, float]:
-        result = self.folder / f"{name}.json"
+        result = self.folder / f"{name}-{self.config.method}-{self.tag}.json"  # the Hybrid scores the NeRF's renders
         if result.is_file():
             return json.loads(result.read_text())
         CONSOLE.rule(f"{self.name}: {name} baseline")
