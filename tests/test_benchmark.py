@@ -11,6 +11,8 @@ import pytest
 import torch
 from PIL import Image
 
+from nerfstudio.engine.schedulers import MultiStepSchedulerConfig
+
 from ssnerf_method.evaluation.hybrid import HybridBaseline
 from ssnerf_method.experiments import benchmark
 from ssnerf_method.experiments.benchmark import BenchmarkConfig, run
@@ -87,3 +89,19 @@ def test_rendered_depth_is_z_depth() -> None:
 
     depth = benchmark.rendered_depth(Pipeline(), [None, None])(1)  # type: ignore[arg-type]
     assert depth.shape == (1, 3) and np.allclose(depth, 2.0)
+
+
+def test_lr_drop_replaces_every_schedule_and_names_the_runs_apart(tmp_path: Path) -> None:
+    scene = tmp_path / "scene"
+    plain = benchmark.SceneBenchmark(BenchmarkConfig(output=tmp_path, steps=200), scene, "a")
+    dropped = benchmark.SceneBenchmark(BenchmarkConfig(output=tmp_path, steps=200, lr_drop=0.75), scene, "a")
+    trainer = dropped.trainer_config(benchmark.ModelRun("nerf", ()))
+    assert set(trainer.optimizers) == set(plain.trainer_config(benchmark.ModelRun("nerf", ())).optimizers)
+    for optimizer in trainer.optimizers.values():
+        scheduler = optimizer["scheduler"]
+        assert isinstance(scheduler, MultiStepSchedulerConfig)
+        assert scheduler.milestones == (150,) and scheduler.gamma == 0.1 and scheduler.max_steps == 200
+    assert plain.config_path("nerf") != dropped.config_path("nerf")
+    assert dropped.config_path("nerf").parent.name == "200-steps-lr-drop-0.75"
+    with pytest.raises(ValueError, match="strictly between 0 and 1"):
+        benchmark.SceneBenchmark(BenchmarkConfig(output=tmp_path, steps=200, lr_drop=1.5), scene, "a")

@@ -32,7 +32,7 @@ from ssnerf_method.data.export_dataset import ExportDatasetConfig, export_datase
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
-from ssnerf_method.experiments.benchmark import DEFAULT_STEPS, ModelRun, SceneBenchmark, generated_scenes
+from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes, run_tag
 from ssnerf_method.experiments.report import average, headline, markdown, property_title
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
@@ -78,8 +78,7 @@ class AugmentationStudy(StudyConfig):
         config.output.mkdir(parents=True, exist_ok=True)
         scenes = list(config.scenes) or generated_scenes(config)
         # renders and task networks come from SS-NeRF runs of one method and step count
-        steps = config.steps or DEFAULT_STEPS[config.method]
-        folder = config.output / "augmentation" / config.method / f"{steps}-steps"
+        folder = config.output / "augmentation" / config.method / run_tag(config)
         data: Dict[str, Dict[str, List[SSNeRFDataset]]] = {prop: {} for prop in self.properties}
         tests = {scene.name: load_split(scene, "test") for scene in scenes}
         details: Dict[str, Any] = {}

@@ -24,6 +24,7 @@ import numpy as np
 import torch
 import tyro
 
+from nerfstudio.engine.schedulers import MultiStepSchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.pipelines.base_pipeline import Pipeline
 from nerfstudio.scripts.train import main as train_main
@@ -79,6 +80,10 @@ class ScenesRunsConfig:
     """Folder for the reports, the figures and every run (resumable; the benchmark and the studies share runs)."""
     steps: Optional[int] = None
     """Training steps per model (default: 1000 for ssnerf-lite, 20000 for ssnerf)."""
+    lr_drop: Optional[float] = None
+    """If set, every learning rate stays constant and is multiplied by 0.1 once, at this fraction of the steps
+    (nerfstudio's MultiStepScheduler), in place of the method's exponential decay, which is sized for 30k (lite) or
+    250k steps and has barely begun after a few thousand. Runs trained so are kept apart from the others."""
     quick: bool = False
     """A few minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not
     meaningful; the whole pipeline runs."""
@@ -96,6 +101,14 @@ class BenchmarkConfig(ScenesRunsConfig):
     """Index of the test view shown in each scene's figure."""
     heuristic: HeuristicBaselineConfig = field(default_factory=HeuristicBaselineConfig)
     hybrid: HybridBaselineConfig = field(default_factory=HybridBaselineConfig)
+
+
+def run_tag(config: ScenesRunsConfig) -> str:
+    """What a run's training was, as a folder name: its step count and, if set, the learning-rate drop."""
+    if config.lr_drop is not None and not 0.0 < config.lr_drop < 1.0:
+        raise ValueError(f"--lr-drop is a fraction of the steps, strictly between 0 and 1; got {config.lr_drop}")
+    tag = f"{config.steps or DEFAULT_STEPS[config.method]}-steps"
+    return tag if config.lr_drop is None else f"{tag}-lr-drop-{config.lr_drop:g}"
 
 
 def quick_config(config: BenchmarkConfig) -> BenchmarkConfig:
@@ -134,7 +147,7 @@ class SceneBenchmark:
         self.config, self.scene, self.name = config, scene, name
         self.folder = config.output / "runs" / name
         self.steps = config.steps or DEFAULT_STEPS[config.method]
-        self.tag = f"{self.steps}-steps"
+        self.tag = run_tag(config)
         """Run folders and cached results are per method and step count, so another --steps or --method on the same
         --output trains afresh instead of reusing results of a different training."""
 
@@ -161,6 +174,11 @@ class SceneBenchmark:
         trainer.steps_per_save = self.steps
         trainer.steps_per_eval_image = trainer.steps_per_eval_all_images = self.steps + 1
         trainer.steps_per_eval_batch = self.steps + 1
+        if self.config.lr_drop is not None:
+            milestone = int(round(self.config.lr_drop * self.steps))
+            for optimizer in trainer.optimizers.values():
+                optimizer["scheduler"] = MultiStepSchedulerConfig(max_steps=self.steps, gamma=0.1,
+                                                                  milestones=(milestone,))
         if self.config.quick:
             shrink_for_quick(trainer)
         return trainer
@@ -331,7 +349,7 @@ def run(config: BenchmarkConfig) -> Dict[str, Dict[str, Dict[str, float]]]:
     for scene, name in zip(scenes, names):
         results[name] = SceneBenchmark(config, scene, name).run()
     report = write_report(config.output, results, list(config.properties), config.method,
-                          config.steps or DEFAULT_STEPS[config.method])
+                          config.steps or DEFAULT_STEPS[config.method], config.lr_drop)
     CONSOLE.print(report.read_text())
     CONSOLE.print(f"Benchmark done in {(time.time() - start) / 60:.1f} min: {report}")
     return results

@@ -83,7 +83,14 @@ def beats(rows: List[Dict], properties: Sequence[str], baseline: str) -> Dict[st
     return result
 
 
-def write_report(output: Path, results: Results, properties: Sequence[str], method: str, steps: int) -> Path:
+def training_words(method: str, steps: int, lr_drop: Optional[float] = None) -> str:
+    """How every model was trained, for a report's title."""
+    drop = f", learning rates x0.1 after {lr_drop:.0%} of them" if lr_drop is not None else ""
+    return f"{method}, {steps} steps per model{drop}"
+
+
+def write_report(output: Path, results: Results, properties: Sequence[str], method: str, steps: int,
+                 lr_drop: Optional[float] = None) -> Path:
     """Write `report.md` and `tables.json` into `output`; returns the report's path."""
     first = table1(results, properties)
     second = table2(results, properties)
@@ -95,7 +102,7 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
         for baseline, won in verdicts.items() if won
     )
     report = "\n\n".join([
-        f"# SS-NeRF benchmark ({method}, {steps} steps per model)",
+        f"# SS-NeRF benchmark ({training_words(method, steps, lr_drop)})",
         f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them "
         "(mIoU from the accumulated confusion matrix, L1 over all labelled pixels).",
         "## Table 1: scene properties",
@@ -108,7 +115,7 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
     ])
     path = output / "report.md"
     path.write_text(report + "\n")
-    tables = {"method": method, "steps": steps, "table1": first, "table2_left": second,
+    tables = {"method": method, "steps": steps, "lr_drop": lr_drop, "table1": first, "table2_left": second,
               "beats": verdicts, "results": results}
     (output / "tables.json").write_text(json.dumps(tables, indent=2))
     return path

@@ -36,7 +36,7 @@ from ssnerf_method.experiments.benchmark import (
     generated_scenes,
     quick_config,
 )
-from ssnerf_method.experiments.report import average, cell, headline, markdown, property_title
+from ssnerf_method.experiments.report import average, cell, headline, markdown, property_title, training_words
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 
 Results = Dict[str, Dict[str, Dict[str, Any]]]
@@ -78,7 +78,7 @@ class StudyConfig(ScenesRunsConfig):
 
     def benchmark_config(self) -> BenchmarkConfig:
         config = BenchmarkConfig(scenes=self.scenes, method=self.method, output=self.output, steps=self.steps,
-                                 quick=self.quick)
+                                 lr_drop=self.lr_drop, quick=self.quick)
         return quick_config(config) if self.quick else config
 
 
@@ -255,10 +255,12 @@ def write_study_report(study: StudyConfig, results: Results, runs: Dict[str, Any
     steps = config.steps or DEFAULT_STEPS[config.method]
     details = {
         "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]), "commit": commit(), "method": config.method,
-        "steps": steps, "quick": config.quick, "wall_clock_seconds": round(seconds, 1), "runs": runs,
+        "steps": steps, "lr_drop": config.lr_drop, "quick": config.quick, "wall_clock_seconds": round(seconds, 1),
+        "runs": runs,
     }
     report = "\n\n".join([
-        f"# SS-NeRF {study.name} study ({config.method}, {steps} steps per model{', --quick' if config.quick else ''})",
+        f"# SS-NeRF {study.name} study ({training_words(config.method, steps, config.lr_drop)}"
+        f"{', --quick' if config.quick else ''})",
         f"Scenes: {', '.join(results)}. {study.scope}",
         text,
         f"Command: `{details['command']}`; commit {details['commit']}; {details['wall_clock_seconds']} s in all; "
