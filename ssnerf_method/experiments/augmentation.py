@@ -77,7 +77,7 @@ class AugmentationStudy(StudyConfig):
         config = self.benchmark_config()
         config.output.mkdir(parents=True, exist_ok=True)
         scenes = list(config.scenes) or generated_scenes(config)
-        # renders and task networks come from SS-NeRF runs of one method and step count
+        # renders and task networks come from SS-NeRF runs of one method and schedule
         folder = config.output / "augmentation" / config.method / run_tag(config)
         data: Dict[str, Dict[str, List[SSNeRFDataset]]] = {prop: {} for prop in self.properties}
         tests = {scene.name: load_split(scene, "test") for scene in scenes}

@@ -148,8 +148,8 @@ class SceneBenchmark:
         self.folder = config.output / "runs" / name
         self.steps = config.steps or DEFAULT_STEPS[config.method]
         self.tag = run_tag(config)
-        """Run folders and cached results are per method and step count, so another --steps or --method on the same
-        --output trains afresh instead of reusing results of a different training."""
+        """Run folders and cached results are per method and schedule (steps, --lr-drop), so another --steps, --method
+        or --lr-drop on the same --output trains afresh instead of reusing results of a different training."""
 
     def models(self) -> List[ModelRun]:
         """The RGB-only NeRF, one SS-NeRF per property and (optionally) the all-properties one."""
