@@ -88,6 +88,10 @@ class ScenesRunsConfig:
     """A few minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not
     meaningful; the whole pipeline runs."""
 
+    def __post_init__(self) -> None:
+        if self.lr_drop is not None and not 0.0 < self.lr_drop < 1.0:
+            raise ValueError(f"--lr-drop is a fraction of the steps, strictly between 0 and 1; got {self.lr_drop}")
+
 
 @dataclass
 class BenchmarkConfig(ScenesRunsConfig):
@@ -105,8 +109,6 @@ class BenchmarkConfig(ScenesRunsConfig):
 
 def run_tag(config: ScenesRunsConfig) -> str:
     """What a run's training was, as a folder name: its step count and, if set, the learning-rate drop."""
-    if config.lr_drop is not None and not 0.0 < config.lr_drop < 1.0:
-        raise ValueError(f"--lr-drop is a fraction of the steps, strictly between 0 and 1; got {config.lr_drop}")
     tag = f"{config.steps or DEFAULT_STEPS[config.method]}-steps"
     return tag if config.lr_drop is None else f"{tag}-lr-drop-{config.lr_drop:g}"
 
