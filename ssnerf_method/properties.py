@@ -26,7 +26,7 @@ from nerfstudio.utils import colormaps
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
 
-LossName = Literal["mse", "l1", "cross_entropy"]
+LossName = Literal["mse", "l1", "cross_entropy", "heatmap_l1"]
 """Names of the losses in `ssnerf_method/model/losses.py`."""
 
 SEMANTIC_IGNORE = 255
@@ -285,7 +285,7 @@ class PropertySpec:
     """Loss name, implemented in `ssnerf_method/model/losses.py`."""
     weight: float
     """Loss weight lambda (paper Sec. 4.1)."""
-    metric: Literal["psnr", "miou", "l1", "normal"]
+    metric: Literal["psnr", "miou", "l1", "normal", "edge", "keypoint"]
     """Evaluation metric, implemented in `ssnerf_method/evaluation/metrics.py`."""
     colormap: str
     """Display colour mapping of a one-channel map (a nerfstudio colormap name); "default" for images in colour."""
@@ -330,8 +330,8 @@ REGISTRY: Dict[str, PropertySpec] = {
         PropertySpec("semantics", "SL", ClassKind(), "semantics_file_path", "nv", "cross_entropy", 0.04, "miou", "default", "classes"),
         PropertySpec("normals", "SN", NormalKind(), "normals_file_path", "nv", "mse", 1.0, "normal", "default", "dense"),
         PropertySpec("shading", "SH", ScalarKind("sigmoid"), "shading_file_path", "v", "l1", 0.1, "l1", "gray", "dense"),
-        PropertySpec("keypoints", "KP", ScalarKind("relu"), "keypoints_file_path", "v", "l1", 2.0, "l1", "gray", "sparse"),
-        PropertySpec("edges", "ED", ScalarKind("sigmoid"), "edges_file_path", "v", "l1", 0.4, "l1", "gray", "sparse"),
+        PropertySpec("keypoints", "KP", ScalarKind("sigmoid"), "keypoints_file_path", "v", "l1", 2.0, "keypoint", "gray", "sparse"),
+        PropertySpec("edges", "ED", ScalarKind("sigmoid"), "edges_file_path", "v", "l1", 0.4, "edge", "gray", "sparse"),
     )
 }
 """Every property the plugin knows. RGB is always rendered; the others are optional."""

@@ -11,6 +11,7 @@ import pytest
 
 from ssnerf_method.data.transforms import Transforms, camera_rays, frame_camera
 from ssnerf_method.labels import camera_ray_directions, canny_edges, keypoint_heatmap, lambertian_shading
+from ssnerf_method.labels.keypoints import keypoint_label, keypoint_response_map
 from ssnerf_method.labels import normals_from_depth, normals_from_points
 from ssnerf_method.labels.keypoints import detect_keypoints
 from ssnerf_method.labels.surf import local_max_3x3x3
@@ -55,6 +56,40 @@ def test_keypoint_heatmap_peaks_on_a_blob(detector: str) -> None:
     assert heatmap[:, :15].max() == 0 and heatmap[:, 70:].max() == 0  # zero away from the only blob
     positions, _ = detect_keypoints(image, detector)
     assert np.linalg.norm(positions - [39.5, 29.5], axis=1).min() <= 1.5
+
+
+def blob_image(centres, width: int = WIDTH, contrast: float = 180.0) -> np.ndarray:
+    """A grey uint8 RGB image with a Gaussian blob (sigma 4 px) at each (x, y) in `centres`."""
+    rows, cols = np.mgrid[0:HEIGHT, 0:width] + 0.5
+    image = np.full((HEIGHT, width), 40.0)
+    for x, y in centres:
+        image += contrast * np.exp(-((cols - x) ** 2 + (rows - y) ** 2) / (2 * 4.0**2))
+    return np.repeat(np.clip(image, 0, 255).astype(np.uint8)[..., None], 3, axis=-1)
+
+
+def test_keypoint_response_map_peaks_on_the_blob_and_is_the_same_in_every_view() -> None:
+    image = blob_image([(40.0, 30.0)])
+    response = keypoint_label(image)  # the default definition
+    assert response.dtype == np.float32 and response.shape == (HEIGHT, WIDTH)
+    peak_row, peak_col = np.unravel_index(np.argmax(response), response.shape)
+    assert abs(peak_row - 29.5) <= 1.5 and abs(peak_col - 39.5) <= 1.5 and response.max() > 0.5
+    assert response[:, :15].max() < 0.01 and response.min() >= 0.0 and response.max() < 1.0
+    assert keypoint_response_map(np.full((HEIGHT, WIDTH, 3), 90, dtype=np.uint8)).max() == 0.0  # flat: nothing
+    # A fixed curve, not a per-image normalisation: a stronger second blob elsewhere leaves the first one's values
+    # as they were, where the blob heatmap divides them by the new maximum.
+    wider = blob_image([(40.0, 30.0), (120.0, 30.0)], width=160)
+    wider[..., :] = np.where(np.arange(160)[None, :, None] < 80, wider, blob_image([(40.0, 30.0), (120.0, 30.0)],
+                                                                                   width=160, contrast=215.0))
+    assert np.array_equal(keypoint_response_map(wider)[:, 10:70], response[:, 10:70])
+    assert not np.allclose(keypoint_heatmap(wider)[:, 10:70], keypoint_heatmap(image)[:, 10:70])
+
+
+def test_keypoint_label_definitions() -> None:
+    image = blob_image([(40.0, 30.0)])
+    assert np.array_equal(keypoint_label(image, "blobs", sigma=2.0, detector="sift"),
+                          keypoint_heatmap(image, sigma=2.0, detector="sift"))
+    with pytest.raises(ValueError, match="response or blobs"):
+        keypoint_label(image, "corners")  # type: ignore[arg-type]
 
 
 def test_orb_and_flat_images() -> None:

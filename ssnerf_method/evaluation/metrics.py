@@ -12,9 +12,10 @@ from __future__ import annotations
 
 import math
 from abc import ABC, abstractmethod
-from typing import Dict, Sequence
+from typing import Dict, Sequence, Tuple
 
 import torch
+import torch.nn.functional as F
 from jaxtyping import Bool, Float
 from torch import Tensor
 from torchmetrics.functional import structural_similarity_index_measure
@@ -36,6 +37,10 @@ def _nan() -> float:
 class Metric(ABC):
     """A metric of one property, computable per view and over a split from the same additive statistics."""
 
+    reported: Tuple[Tuple[str, bool], ...] = ()
+    """The values reports show, as (name, higher is better): the paper's number first (the headline of Table 1),
+    then any measure beside it."""
+
     @abstractmethod
     def statistics(self, prediction: Tensor, label: Tensor, valid: Bool[Tensor, "h w"], num_classes: int) -> Statistics:
         """Additive statistics of one view (summing them over views gives the split's)."""
@@ -51,6 +56,8 @@ class Metric(ABC):
 
 class PSNRMetric(Metric):
     """PSNR and SSIM of RGB in [0, 1] over all pixels, averaged per view over a split."""
+
+    reported = (("psnr", True),)
 
     def statistics(
         self, prediction: Float[Tensor, "h w 3"], label: Float[Tensor, "h w 3"], valid: Tensor, num_classes: int
@@ -93,6 +100,8 @@ def miou_from_confusion(confusion: Tensor) -> Dict[str, float]:
 class MIoUMetric(Metric):
     """Semantic mIoU and pixel accuracy; prediction = logits or probabilities, unlabelled pixels ignored."""
 
+    reported = (("miou", True),)
+
     def statistics(
         self, prediction: Float[Tensor, "h w classes"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
     ) -> Statistics:
@@ -105,6 +114,8 @@ class MIoUMetric(Metric):
 class L1Metric(Metric):
     """Mean absolute error over labelled pixels and channels, in the stored [0, 1] encoding (paper Table 1)."""
 
+    reported = (("l1", False),)
+
     def statistics(
         self, prediction: Float[Tensor, "h w c"], label: Float[Tensor, "h w c"], valid: Tensor, num_classes: int
     ) -> Statistics:
@@ -114,6 +125,138 @@ class L1Metric(Metric):
     def summarize(self, statistics: Statistics) -> Dict[str, float]:
         count = float(statistics["count"])
         return {"l1": float(statistics["abs_sum"]) / count if count else _nan()}
+
+
+SPARSE_THRESHOLDS = torch.arange(1, 101, dtype=torch.float64) / 100.0
+"""Thresholds t = 0.01, 0.02, ..., 1.00 at which a rendered sparse map (edges, keypoints) is cut: a pixel or peak
+scoring >= t is predicted. The split-level F1 is the best over these (ODS, as edge-detection benchmarks report)."""
+EDGE_TOLERANCE_PX = 1
+"""An edge pixel matches if the other map has an edge pixel within this many pixels (8-neighbourhood)."""
+KEYPOINT_LABEL_PEAK = 0.5
+"""Ground-truth keypoints are the label's local maxima above this value."""
+KEYPOINT_TOLERANCE_PX = 3.0
+"""A predicted keypoint is a hit if an unmatched ground-truth keypoint lies within this many pixels (Euclidean)."""
+
+
+def precision_recall_summary(
+    predicted: Tensor, predicted_hits: Tensor, truth: Tensor, truth_hits: Tensor
+) -> Dict[str, float]:
+    """ODS F1 (best over the thresholds), the threshold it is reached at, and average precision (area under the
+    precision-recall curve, thresholds from high to low) from per-threshold counts summed over a split. With no
+    ground truth everything is NaN; with no prediction at a threshold its precision and F1 are 0."""
+    if float(truth) == 0:
+        return {"f1": _nan(), "f1_threshold": _nan(), "ap": _nan()}
+    precision = torch.where(predicted > 0, predicted_hits / predicted.clamp_min(1), torch.zeros_like(predicted))
+    recall = truth_hits / truth
+    f1 = torch.where(precision + recall > 0, 2 * precision * recall / (precision + recall).clamp_min(1e-12),
+                     torch.zeros_like(precision))
+    best = int(torch.argmax(f1))
+    descending_recall = recall.flip(0)
+    gained = torch.diff(descending_recall, prepend=descending_recall.new_zeros(1)).clamp_min(0)
+    return {"f1": float(f1[best]), "f1_threshold": float(SPARSE_THRESHOLDS[best]),
+            "ap": float((gained * precision.flip(0)).sum())}
+
+
+def dilate(mask: Bool[Tensor, "*bs h w"], radius: int) -> Bool[Tensor, "*bs h w"]:
+    """Pixels within `radius` (8-neighbourhood steps) of a set pixel."""
+    flat = mask.reshape(-1, 1, *mask.shape[-2:]).float()
+    grown = F.max_pool2d(flat, kernel_size=2 * radius + 1, stride=1, padding=radius)
+    return grown.reshape(mask.shape) > 0
+
+
+class EdgeMetric(L1Metric):
+    """L1 (the paper's) plus boundary F1 and average precision: the rendered map cut at each threshold is matched
+    to the label's edges (label >= 0.5) with a tolerance of `EDGE_TOLERANCE_PX`. Precision is the share of
+    predicted edge pixels near a true one, recall the share of true edge pixels near a predicted one; an empty map
+    scores 0, the label itself 1, and a map shifted by one pixel still 1. Counts add over the views, so the split's
+    F1 uses one threshold for all of them."""
+
+    reported = (("l1", False), ("f1", True), ("ap", True))
+
+    def statistics(
+        self, prediction: Float[Tensor, "h w 1"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
+    ) -> Statistics:
+        statistics = super().statistics(prediction, label, valid, num_classes)
+        thresholds = SPARSE_THRESHOLDS.to(prediction.device, prediction.dtype)
+        truth = (label[..., 0] >= 0.5) & valid
+        predicted = (prediction[..., 0][None] >= thresholds[:, None, None]) & valid[None]
+        near_truth = dilate(truth, EDGE_TOLERANCE_PX)
+        near_predicted = dilate(predicted, EDGE_TOLERANCE_PX)
+        statistics.update(
+            edge_predicted=predicted.sum(dim=(1, 2)).double().cpu(),
+            edge_predicted_hits=(predicted & near_truth[None]).sum(dim=(1, 2)).double().cpu(),
+            edge_truth=truth.sum().double().cpu(),
+            edge_truth_hits=(near_predicted & truth[None]).sum(dim=(1, 2)).double().cpu(),
+        )
+        return statistics
+
+    def summarize(self, statistics: Statistics) -> Dict[str, float]:
+        values = super().summarize(statistics)
+        values.update(precision_recall_summary(statistics["edge_predicted"], statistics["edge_predicted_hits"],
+                                               statistics["edge_truth"], statistics["edge_truth_hits"]))
+        return values
+
+
+def local_maxima(values: Float[Tensor, "h w"], valid: Bool[Tensor, "h w"], floor: float) -> Tuple[Tensor, Tensor]:
+    """Peaks of a map: labelled pixels above `floor` that are the largest in their 3x3 neighbourhood (ties broken
+    by raster order, so a flat-topped peak counts once). Returns their (N, 2) (row, column) positions and values."""
+    height, width = values.shape
+    order = torch.arange(height * width, dtype=torch.float64, device=values.device).reshape(height, width)
+    # a tie-break far below the 8-bit label step: among equal values the earlier pixel wins
+    keyed = torch.where(valid, values.double() - order * 1e-9 / (height * width), torch.full_like(order, -1.0))
+    neighbourhood = F.max_pool2d(keyed[None, None], kernel_size=3, stride=1, padding=1)[0, 0]
+    peaks = (keyed == neighbourhood) & valid & (values > floor)
+    positions = torch.nonzero(peaks)
+    return positions, values[peaks]
+
+
+def match_keypoints(predicted: Tensor, scores: Tensor, truth: Tensor, tolerance: float) -> Bool[Tensor, "n"]:
+    """Greedy matching in descending score: each predicted peak takes the nearest still unmatched true keypoint
+    within `tolerance` pixels. Returns, per prediction, whether it is a hit. Because stronger peaks choose first,
+    the hits among the peaks above any threshold are those that matching only them would give."""
+    hits = torch.zeros(len(predicted), dtype=torch.bool)
+    if len(predicted) == 0 or len(truth) == 0:
+        return hits
+    distances = torch.cdist(predicted.double().cpu(), truth.double().cpu())
+    taken = torch.zeros(len(truth), dtype=torch.bool)
+    for index in torch.argsort(scores.cpu(), descending=True, stable=True).tolist():
+        candidates = distances[index].masked_fill(taken, math.inf)
+        nearest = int(torch.argmin(candidates))
+        if candidates[nearest] <= tolerance:
+            taken[nearest] = True
+            hits[index] = True
+    return hits
+
+
+class KeypointMetric(L1Metric):
+    """L1 (the paper's) plus keypoint F1 and average precision. True keypoints are the label's local maxima above
+    `KEYPOINT_LABEL_PEAK`; predicted keypoints the render's local maxima scoring above each threshold; a prediction
+    within `KEYPOINT_TOLERANCE_PX` of an unmatched true keypoint is a hit. An empty map scores 0 and the label itself
+    1, which its L1 cannot tell apart on a map that is mostly zero."""
+
+    reported = (("l1", False), ("f1", True), ("ap", True))
+
+    def statistics(
+        self, prediction: Float[Tensor, "h w 1"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
+    ) -> Statistics:
+        statistics = super().statistics(prediction, label, valid, num_classes)
+        truth, _ = local_maxima(label[..., 0], valid, KEYPOINT_LABEL_PEAK)
+        predicted, scores = local_maxima(prediction[..., 0], valid, float(SPARSE_THRESHOLDS[0]) - 1e-9)
+        hits = match_keypoints(predicted, scores, truth, KEYPOINT_TOLERANCE_PX)
+        above = scores.double().cpu()[None] >= SPARSE_THRESHOLDS[:, None] - 1e-9
+        statistics.update(
+            keypoint_predicted=above.sum(dim=1).double(),
+            keypoint_predicted_hits=(above & hits[None]).sum(dim=1).double(),
+            keypoint_truth=torch.tensor(float(len(truth)), dtype=torch.float64),
+            keypoint_truth_hits=(above & hits[None]).sum(dim=1).double(),
+        )
+        return statistics
+
+    def summarize(self, statistics: Statistics) -> Dict[str, float]:
+        values = super().summarize(statistics)
+        values.update(precision_recall_summary(statistics["keypoint_predicted"], statistics["keypoint_predicted_hits"],
+                                               statistics["keypoint_truth"], statistics["keypoint_truth_hits"]))
+        return values
 
 
 class NormalMetric(L1Metric):
@@ -170,6 +313,8 @@ def histogram_median(histogram: Tensor) -> float:
 class DepthMetric(Metric):
     """L1 and RMSE of z-depth in metres over pixels with valid (> 0, finite) ground truth."""
 
+    reported = (("l1", False),)
+
     def statistics(
         self, prediction: Float[Tensor, "h w 1"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
     ) -> Statistics:
@@ -212,6 +357,8 @@ METRICS: Dict[str, Metric] = {
     "psnr": PSNRMetric(),
     "miou": MIoUMetric(),
     "l1": L1Metric(),
+    "edge": EdgeMetric(),
+    "keypoint": KeypointMetric(),
     "normal": NormalMetric(),
     "depth": DepthMetric(),
 }

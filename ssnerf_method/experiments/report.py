@@ -4,29 +4,58 @@ from __future__ import annotations
 
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from ssnerf_method.evaluation.metrics import METRICS
 from ssnerf_method.properties import REGISTRY
-
-HEADLINE = {"miou": ("miou", True), "normal": ("l1", False), "l1": ("l1", False)}
-"""Per registry metric: the Table 1 number (the paper's) and whether higher is better."""
 
 Results = Dict[str, Dict[str, Dict[str, float]]]
 """scene -> row (run name, "heuristic", "hybrid") -> metric name -> value."""
 
 
+@dataclass(frozen=True)
+class Column:
+    """One reported number of a property: a column of Table 1 and of the studies' property tables."""
+
+    key: str
+    """Row key in the JSON tables: the property's name for its headline (the paper's number), else the metric."""
+    prop: str
+    metric: str
+    """Metric name in the runs' metrics (`semantics_miou`, `edges_f1`, ...)."""
+    higher: bool
+    """Whether higher is better."""
+
+    @property
+    def title(self) -> str:
+        """The paper's abbreviation, the measure and the better direction, e.g. `ED f1 ↑`."""
+        return f"{REGISTRY[self.prop].short} {self.metric[len(REGISTRY[self.prop].metric_prefix):]} " + (
+            "↑" if self.higher else "↓")
+
+
+def property_columns(name: str) -> List[Column]:
+    """A property's reported numbers (its metric's `reported`): the paper's headline first, then the measures beside
+    it (F1 and AP for the sparse maps, which an empty map cannot pass)."""
+    spec = REGISTRY[name]
+    return [Column(name if index == 0 else spec.metric_prefix + key, name, spec.metric_prefix + key, higher)
+            for index, (key, higher) in enumerate(METRICS[spec.metric].reported)]
+
+
+def columns_of(properties: Sequence[str]) -> List[Column]:
+    """Every reported column of `properties`, property by property."""
+    return [column for name in properties for column in property_columns(name)]
+
+
 def headline(name: str) -> Tuple[str, bool]:
     """Metric name of a property's Table 1 number (`semantics_miou`, `normals_l1`, ...) and if higher is better."""
-    spec = REGISTRY[name]
-    key, higher = HEADLINE[spec.metric]
-    return spec.metric_prefix + key, higher
+    first = property_columns(name)[0]
+    return first.metric, first.higher
 
 
 def property_title(name: str) -> str:
-    """A property's column title: the paper's abbreviation, its Table 1 metric and the better direction."""
-    key, higher = headline(name)
-    return f"{REGISTRY[name].short} {key.split('_', 1)[1]} {'↑' if higher else '↓'}"
+    """A property's headline column title: the paper's abbreviation, its Table 1 metric and the better direction."""
+    return property_columns(name)[0].title
 
 
 def average(values: Sequence[Optional[float]]) -> Optional[float]:
@@ -37,16 +66,18 @@ def average(values: Sequence[Optional[float]]) -> Optional[float]:
 def table1(results: Results, properties: Sequence[str]) -> List[Dict]:
     """Rows of Table 1: SS-NeRF per scene (property X from the model trained on X), their average, the all-properties
     model's average (when trained) and each baseline's average."""
+    columns = columns_of(properties)
     rows = []
     for scene, runs in results.items():
         rows.append({"row": f"SS-NeRF ({scene})", **{
-            name: runs.get(f"ssnerf-{name}", {}).get(headline(name)[0]) for name in properties}})
-    rows.append({"row": "SS-NeRF, average", **{name: average([row[name] for row in rows]) for name in properties}})
+            column.key: runs.get(f"ssnerf-{column.prop}", {}).get(column.metric) for column in columns}})
+    rows.append({"row": "SS-NeRF, average", **{column.key: average([row[column.key] for row in rows])
+                                               for column in columns}})
     for label, run in (("SS-NeRF, one model for all properties, average", "ssnerf-all"),
                        ("Heuristic, average", "heuristic"), ("Hybrid, average", "hybrid")):
         if any(run in runs for runs in results.values()):
-            rows.append({"row": label, **{name: average([runs.get(run, {}).get(headline(name)[0])
-                                                       for runs in results.values()]) for name in properties}})
+            rows.append({"row": label, **{column.key: average([runs.get(run, {}).get(column.metric)
+                                                               for runs in results.values()]) for column in columns}})
     return rows
 
 
@@ -94,7 +125,7 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
     """Write `report.md` and `tables.json` into `output`; returns the report's path."""
     first = table1(results, properties)
     second = table2(results, properties)
-    titles = [property_title(name) for name in properties]
+    columns = columns_of(properties)
     verdicts = {baseline: beats(first, properties, baseline) for baseline in ("Heuristic", "Hybrid")}
     summary = "; ".join(
         f"beats {baseline} on {sum(won.values())}/{len(won)}"
@@ -106,7 +137,7 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
         f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them "
         "(mIoU from the accumulated confusion matrix, L1 over all labelled pixels).",
         "## Table 1: scene properties",
-        markdown(first, list(properties), titles, 4),
+        markdown(first, [column.key for column in columns], [column.title for column in columns], 4),
         f"SS-NeRF (average) {summary}." if summary else "",
         "## Table 2 (left): RGB PSNR of NeRF and of each single-property SS-NeRF",
         markdown(second, ["nerf", *(f"ssnerf-{name}" for name in properties)],

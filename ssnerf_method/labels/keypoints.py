@@ -1,4 +1,12 @@
-"""Keypoint label: detector responses (SURF by default, as in the paper) splatted as Gaussian blobs into [0, 1]."""
+"""Keypoint labels, two definitions.
+
+- `response` (default): the dense response map of SURF's blob detector, as Taskonomy's keypoint2d images are: the
+  positive determinant of the box-filter Hessian, largest over the first octave's filter sizes, mapped into [0, 1)
+  by one fixed curve, so that the same blob gives the same value in every view. Its local maxima above 0.5 are the
+  blobs SURF detects at `RESPONSE_AT_HALF`. A field learns it like any dense map.
+- `blobs`: detector keypoints (SURF, SIFT or ORB) splatted as Gaussian blobs whose peak is the response over the
+  image's strongest. About 2% of pixels and different from view to view: a field trained on it renders an empty map.
+"""
 
 from __future__ import annotations
 
@@ -8,7 +16,13 @@ import cv2
 import numpy as np
 
 from ssnerf_method.labels.edges import to_gray_uint8
-from ssnerf_method.labels.surf import detect_surf
+from ssnerf_method.labels.surf import detect_surf, hessian_response, integral_image, octave_sizes
+
+KeypointLabel = Literal["response", "blobs"]
+"""Definition of the keypoint label (module docstring)."""
+
+RESPONSE_AT_HALF = 0.002
+"""Hessian-determinant response (of the [0, 1] grey image) that maps to 0.5 in the `response` label."""
 
 Detector = Literal["surf", "sift", "orb"]
 """`surf`: our Fast-Hessian detector (`labels/surf.py`); `sift`, `orb`: OpenCV's, with OpenCV's defaults."""
@@ -65,3 +79,33 @@ def keypoint_heatmap(image: np.ndarray, sigma: float = 1.5, detector: Detector =
     if len(responses) == 0 or responses.max() <= 0:
         return np.zeros((height, width), dtype=np.float32)
     return splat_keypoints(positions, responses / responses.max(), height, width, sigma)
+
+
+def keypoint_response_map(image: np.ndarray, response_at_half: float = RESPONSE_AT_HALF) -> np.ndarray:
+    """(H, W) float32 map in [0, 1): 1 - 2^(-r / `response_at_half`) of r, the positive SURF blob response (largest
+    over the first octave's box filters, 9 to 27 px) of an RGB or grey image. Flat regions give 0; the curve is fixed,
+    not scaled per image, so a blob seen from two views gets the same value."""
+    gray = to_gray_uint8(image).astype(np.float64) / 255.0
+    sizes = octave_sizes(0)
+    pad = max(sizes) // 2 + 1
+    table = integral_image(gray, pad)
+    response = np.max([hessian_response(table, pad, gray.shape, size) for size in sizes], axis=0).clip(min=0.0)
+    return (1.0 - np.exp2(-response / response_at_half)).astype(np.float32)
+
+
+def keypoint_label(
+    image: np.ndarray, definition: KeypointLabel = "response", sigma: float = 1.5, detector: Detector = "surf"
+) -> np.ndarray:
+    """The keypoint label of an image by `definition`: the dense response map, or `detector`'s blobs of `sigma`."""
+    if definition == "response":
+        return keypoint_response_map(image)
+    if definition == "blobs":
+        return keypoint_heatmap(image, sigma=sigma, detector=detector)
+    raise ValueError(f"unknown keypoint label {definition!r}; use response or blobs")
+
+
+def describe_keypoint_label(definition: KeypointLabel, sigma: float = 1.5, detector: Detector = "surf") -> str:
+    """How a keypoint label was made, for a dataset's provenance record."""
+    if definition == "response":
+        return f"SURF blob-response map 1 - 2^(-r / {RESPONSE_AT_HALF:g}), largest over box filters {octave_sizes(0)}"
+    return f"{detector.upper()} keypoints, Gaussian blobs of sigma {sigma:g} px, peak response / max"

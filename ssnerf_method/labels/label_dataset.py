@@ -34,7 +34,7 @@ from nerfstudio.cameras.cameras import Cameras
 from ssnerf_method.data.io import DatasetInputError, Staging, backup_once, image_size, read_image, write_json_atomic
 from ssnerf_method.data.transforms import Transforms, camera_key, camera_rays, frame_camera, is_perspective
 from ssnerf_method.labels.edges import canny_edges
-from ssnerf_method.labels.keypoints import Detector, keypoint_heatmap
+from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
 from ssnerf_method.labels.normals import normals_from_points
 from ssnerf_method.labels.shading import shading_from_rays
 from ssnerf_method.properties import REGISTRY, SEMANTIC_IGNORE
@@ -70,10 +70,13 @@ class LabelDatasetConfig:
     """Canny's lower hysteresis threshold, on the 0-255 grey image's gradient magnitude."""
     canny_high: float = 200.0
     """Canny's upper hysteresis threshold: a gradient above it starts an edge."""
+    keypoint_label: KeypointLabel = "response"
+    """response: SURF's dense blob-response map (Taskonomy's keypoint2d; a field learns it); blobs: detected keypoints
+    splatted as Gaussians (fields render it empty)."""
     keypoint_detector: Detector = "surf"
-    """surf: our Fast-Hessian SURF detector (the paper's); sift, orb: OpenCV's."""
+    """With --keypoint-label blobs: surf, our Fast-Hessian SURF detector (the paper's); sift, orb: OpenCV's."""
     keypoint_sigma: float = 1.5
-    """Radius (Gaussian standard deviation, pixels) of each splatted keypoint."""
+    """With --keypoint-label blobs: radius (Gaussian standard deviation, pixels) of each splatted keypoint."""
     semantics_dir: Optional[Path] = None
     """Folder of per-frame semantic labels named like the images (same relative path, .png): class ids in an 8/16-bit
     single-channel PNG (255 = unlabelled), or colours listed in transforms.json's semantic_colors."""
@@ -123,7 +126,7 @@ def label_edges(context: FrameContext) -> np.ndarray:
 
 def label_keypoints(context: FrameContext) -> np.ndarray:
     config = context.config
-    return _to_uint8(keypoint_heatmap(context.rgb, config.keypoint_sigma, config.keypoint_detector))
+    return _to_uint8(keypoint_label(context.rgb, config.keypoint_label, config.keypoint_sigma, config.keypoint_detector))
 
 
 def read_depth(path: Path) -> np.ndarray:
@@ -408,7 +411,7 @@ def _provenance(config: LabelDatasetConfig) -> Dict:
     return {
         "tool": "ssnerf-label",
         "edges": f"Canny, thresholds {config.canny_low:g} / {config.canny_high:g} on the 8-bit grey image",
-        "keypoints": f"{config.keypoint_detector.upper()} responses / max, Gaussian sigma {config.keypoint_sigma:g} px",
+        "keypoints": describe_keypoint_label(config.keypoint_label, config.keypoint_sigma, config.keypoint_detector),
         "normals": "from depth: camera frame, OpenGL axes (x right, y up, z towards the viewer), (n + 1) / 2 * 255; "
         "alpha 0 where depth is invalid",
         "shading": "Lambertian, point light at the camera centre: clip(dot(n, -view_dir), 0, 1)",

@@ -30,6 +30,7 @@ from ssnerf_method.evaluation.metrics import DEPTH_METRIC, METRICS, Statistics, 
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
 from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField, add_pose_metadata
 from ssnerf_method.model.encoder_transfer import load_encoders
+from ssnerf_method.model.gradient_scaling import scale_gradient
 from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
@@ -117,6 +118,10 @@ class SSNeRFModelConfig(ModelConfig):
     """Far plane, in the dataparser's scaled units (cameras lie within [-1, 1] after scaling)."""
     implementation: Literal["tcnn", "torch"] = "torch"
     """Hash grid implementation (tcnn needs tiny-cuda-nn on CUDA)."""
+    property_geometry_gradient: float = 1.0
+    """Scale of the gradient every property loss (all but RGB's) sends into the rendering weights, i.e. into density
+    and so geometry: 1 is the paper's joint training, 0 lets properties shape only their features while RGB alone
+    shapes geometry. The rendered values are the same either way."""
     encoder_init: Optional[Path] = None
     """Checkpoint (.ckpt) of a trained SS-NeRF of the same method whose F_enc initialises this one's at the first step;
     decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
@@ -214,9 +219,13 @@ class SSNeRFModel(Model):
         CONSOLE.print(f"F_enc ({', '.join(loaded)}) initialised from {self.config.encoder_init}")
 
     def _render_level(self, level: SampleLevel, context: RenderContext, prefix: str) -> Dict[str, Tensor]:
-        """Render every property of one sample level into `prefix + prediction_key` outputs."""
+        """Render every property of one sample level into `prefix + prediction_key` outputs; the properties' losses
+        reach the weights scaled by `property_geometry_gradient`, RGB's in full."""
+        property_weights = scale_gradient(level.weights, self.config.property_geometry_gradient)
         return {
-            prefix + spec.prediction_key: spec.kind.render(level.field_outputs[spec.name], level.weights, context)
+            prefix + spec.prediction_key: spec.kind.render(
+                level.field_outputs[spec.name], level.weights if spec is self.rgb_spec else property_weights, context
+            )
             for spec in self.specs
         }
 

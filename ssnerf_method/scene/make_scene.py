@@ -23,7 +23,7 @@ import tyro
 from ssnerf_method.data.camera_path import to_model_frame, write_camera_path
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.labels.edges import canny_edges
-from ssnerf_method.labels.keypoints import keypoint_heatmap
+from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
 from ssnerf_method.labels.shading import lambertian_shading
 from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import SEMANTIC_CLASSES, SEMANTIC_COLORS, Room, build_room
@@ -38,7 +38,9 @@ EDGE_THRESHOLDS = (100.0, 200.0)
 """Canny hysteresis thresholds (low, high) on the 8-bit grey RGB image."""
 
 KEYPOINT_SIGMA = 1.5
-"""Standard deviation in pixels of each SIFT keypoint's Gaussian blob in the keypoint heatmap."""
+"""With `--keypoint-label blobs`: standard deviation in pixels of each keypoint's Gaussian blob."""
+KEYPOINT_DETECTOR: Detector = "sift"
+"""With `--keypoint-label blobs`: OpenCV's SIFT (the scenes' detector before the response map became the default)."""
 
 LABEL_DIRS = ("images", "depth", "semantics", "normals", "shading", "keypoints", "edges")
 """Sub-folders written per frame; `images` holds RGB, the others the label of the same name."""
@@ -65,6 +67,9 @@ class MakeSceneConfig:
     camera-path` and the viewer's render panel); 0 writes none."""
     path_seconds: float = 5.0
     """Duration of the fly-through video."""
+    keypoint_label: KeypointLabel = "response"
+    """Keypoint label: SURF's dense blob-response map (default; a field learns it) or `blobs`, SIFT keypoints splatted
+    as Gaussians of `KEYPOINT_SIGMA` px (the scenes' label before 2026-12; fields render it empty)."""
     overwrite: bool = False
     """Replace the scene files (transforms.json and the label folders) of a non-empty output_dir."""
 
@@ -178,7 +183,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
             "semantics": view.semantics,
             "normals": _to_uint8((view.normals + 1.0) / 2.0),
             "shading": _to_uint8(lambertian_shading(view.normals, k["fl_x"], k["fl_y"], k["cx"], k["cy"])),
-            "keypoints": _to_uint8(keypoint_heatmap(rgb, sigma=KEYPOINT_SIGMA, detector="sift")),
+            "keypoints": _to_uint8(keypoint_label(rgb, config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR)),
             "edges": _to_uint8(canny_edges(rgb, *EDGE_THRESHOLDS)),
         }
         name = f"frame_{i:05d}.png"
@@ -215,7 +220,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
             "depth_unit": "millimetre z-depth (distance along the camera's viewing axis)",
             "normals_frame": "camera, OpenGL axes (x right, y up, z towards the viewer), stored as (n + 1) / 2 * 255",
             "shading": "Lambertian, point light at the camera centre: clip(dot(n, -view_dir), 0, 1)",
-            "keypoints": f"SIFT (OpenCV defaults), Gaussian blobs of sigma {KEYPOINT_SIGMA} px, peak response / max",
+            "keypoints": describe_keypoint_label(config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR),
             "edges": f"Canny on the 8-bit grey RGB, thresholds {EDGE_THRESHOLDS[0]:g} / {EDGE_THRESHOLDS[1]:g}",
         },
         "frames": frames,
