@@ -74,6 +74,9 @@ ssnerf_lite_config = TrainerConfig(
             # The paper's L1 drives 1-pixel edge maps to an empty map within a CPU budget (measured: blank after
             # 3000 steps); MSE renders them (README, "What to expect").
             losses={"edges": "mse"},
+            # Properties' gradients into F_enc are 10-100x RGB's at the start; left so, Adam lets them set F_enc's
+            # updates and RGB loses ~4 dB at 1000 steps. Capped at half of RGB's (README, "Multi-task balancing").
+            balance_ratio=0.5,
         ),
     ),
     optimizers={

@@ -1,5 +1,5 @@
-"""Multi-task balancing: property losses reach the rendering weights scaled by `property_geometry_gradient` (RGB's
-in full), and the keypoint heatmap loss weights the responses as documented."""
+"""Multi-task balancing: each property's loss is scaled so that its gradient into F_enc is at most the configured
+multiple of RGB's, and the keypoint heatmap loss weights the responses as documented."""
 
 from __future__ import annotations
 
@@ -8,59 +8,81 @@ import torch
 
 from nerfstudio.data.scene_box import SceneBox
 
-from ssnerf_method.model.gradient_scaling import scale_gradient
+from ssnerf_method.model.loss_balancing import LossBalancer
 from ssnerf_method.model.losses import HEATMAP_POSITIVE_WEIGHT, LOSSES
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
-from ssnerf_method.properties import RenderContext
-from ssnerf_method.rendering.sampling import SampleLevel
+
+from test_properties import make_bundle
 
 
-@pytest.mark.parametrize("scale", [0.0, 0.25, 1.0])
-def test_scale_gradient_keeps_the_value_and_scales_the_gradient(scale: float) -> None:
-    leaf = torch.tensor([1.0, -2.0, 3.0], requires_grad=True)
-    scaled = scale_gradient(leaf, scale)
-    assert torch.equal(scaled, leaf.detach())
-    if scale == 0.0:
-        assert not scaled.requires_grad  # detached: no gradient at all
-        return
-    (scaled * torch.tensor([1.0, 2.0, 3.0])).sum().backward()
-    assert torch.allclose(leaf.grad, scale * torch.tensor([1.0, 2.0, 3.0]))
+def test_balancer_caps_each_property_at_the_ratio_of_rgbs_gradient() -> None:
+    """Hand-made losses on one shared parameter: RGB's gradient norm 2, a property's 8 and another's 0.1. With ratio
+    0.5 the first is scaled to 0.5 * 2 / 8 and the second (already below 0.5 * 2) keeps its weight."""
+    shared = torch.nn.Parameter(torch.tensor([1.0, 1.0]))
+    balancer = LossBalancer(["loud", "quiet"], ratio=0.5, momentum=0.0)
+    rgb = (shared * torch.tensor([2.0, 0.0])).sum()
+    losses = {"loud": (shared * torch.tensor([0.0, 8.0])).sum(), "quiet": (shared * torch.tensor([0.1, 0.0])).sum()}
+    assert float(balancer.multiplier("loud")) == 1.0  # before any measurement
+    balancer.update(rgb, losses, [shared])
+    assert float(balancer.multiplier("loud")) == pytest.approx(0.5 * 2.0 / 8.0)
+    assert float(balancer.multiplier("quiet")) == 1.0
+    scaled = losses["loud"] * balancer.multiplier("loud")
+    assert LossBalancer.gradient_norm(scaled, [shared]) == pytest.approx(0.5 * 2.0)
 
 
-def small_model(geometry_gradient: float):
+def test_balancer_smooths_and_leaves_properties_alone_without_rgb() -> None:
+    shared = torch.nn.Parameter(torch.tensor([1.0]))
+    balancer = LossBalancer(["p"], ratio=1.0, momentum=0.5)
+    balancer.update((shared * 1.0).sum(), {"p": (shared * 4.0).sum()}, [shared])
+    assert float(balancer.multiplier("p")) == pytest.approx(0.25)
+    balancer.update((shared * 1.0).sum(), {"p": (shared * 2.0).sum()}, [shared])  # smoothed norm (4 + 2) / 2 = 3
+    assert float(balancer.multiplier("p")) == pytest.approx(1.0 / 3.0)
+    without_rgb = LossBalancer(["p"], ratio=1.0)
+    without_rgb.update((shared * 0.0).sum().detach(), {"p": (shared * 4.0).sum()}, [shared])  # RGB weight 0
+    assert float(without_rgb.multiplier("p")) == 1.0
+
+
+def small_model(balance_ratio=None):
     config = SSNeRFModelConfig(
         properties=("semantics", "edges"), encoder="hashgrid", grid_levels=2, grid_max_res=16,
         grid_log2_hashmap_size=8, grid_hidden_dim=16, grid_feature_dim=8, decoder_width=16, num_coarse_samples=4,
-        num_fine_samples=4, property_geometry_gradient=geometry_gradient,
+        num_fine_samples=4, balance_ratio=balance_ratio, balance_every=3,
     )
     return config.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=1,
                         metadata={"semantic_classes": ["a", "b", "c"], "available_properties": ("semantics", "edges")})
 
 
-def weight_gradients(geometry_gradient: float):
-    """Gradient of each rendered output's sum with respect to a level's weights."""
-    model = small_model(geometry_gradient)
-    generator = torch.Generator().manual_seed(0)
-    outputs = {"rgb": torch.rand(3, 5, 3, generator=generator), "semantics": torch.randn(3, 5, 3, generator=generator),
-               "edges": torch.rand(3, 5, 1, generator=generator)}
-    outputs = {name: values.requires_grad_() for name, values in outputs.items()}  # the field's outputs train too
-    gradients = {}
-    for name, key in (("rgb", "rgb"), ("semantics", "semantics_logits"), ("edges", "edges_value")):
-        weights = torch.rand(3, 5, 1, generator=torch.Generator().manual_seed(1)).requires_grad_()
-        level = SampleLevel(None, outputs, weights)  # type: ignore[arg-type]
-        rendered = model._render_level(level, RenderContext(background_color=torch.zeros(3)), "")
-        rendered[key].sum().backward()
-        gradients[name] = torch.zeros_like(weights) if weights.grad is None else weights.grad.clone()
-    return gradients
-
-
-def test_property_losses_reach_the_weights_scaled_and_rgb_in_full() -> None:
-    full, quarter, none = weight_gradients(1.0), weight_gradients(0.25), weight_gradients(0.0)
-    assert full["edges"].abs().sum() > 0 and full["semantics"].abs().sum() > 0
+def test_model_scales_every_level_of_a_property_loss_by_its_multiplier() -> None:
+    """The model's losses with balancing are the paper's weighted losses times each property's multiplier, on both
+    levels; RGB's are untouched; the multipliers are re-measured only on the scheduled steps and logged."""
+    torch.manual_seed(0)
+    plain, balanced = small_model(), small_model(0.01)
+    balanced.load_state_dict(plain.state_dict(), strict=False)
+    for model in (plain, balanced):
+        model.train()
+    bundle = make_bundle(num_rays=8)
+    batch = {"image": torch.rand(8, 3), "semantics": torch.randint(0, 3, (8, 1)).float(), "edges": torch.rand(8, 1)}
+    callbacks = balanced.get_training_callbacks(None)  # type: ignore[arg-type]
+    for callback in callbacks:
+        callback.run_callback_at_location(0, callback.where_to_run[0])
+    assert balanced.balance_now
+    torch.manual_seed(1)
+    plain_losses = plain.get_loss_dict(outputs := plain(bundle), batch, plain.get_metrics_dict(outputs, batch))
+    torch.manual_seed(1)
+    outputs = balanced(bundle)
+    losses = balanced.get_loss_dict(outputs, batch, balanced.get_metrics_dict(outputs, batch))
+    assert not balanced.balance_now  # measured once, then off until the next scheduled step
     for name in ("semantics", "edges"):
-        assert torch.allclose(quarter[name], 0.25 * full[name])
-        assert torch.equal(none[name], torch.zeros_like(full[name]))
-    assert torch.allclose(none["rgb"], full["rgb"]) and full["rgb"].abs().sum() > 0
+        factor = balanced.balancer.multiplier(name)
+        assert float(factor) < 1.0  # a ratio of 0.01 caps any property whose gradient is more than 1% of RGB's
+        for prefix in ("", "level0_"):
+            assert float(losses[f"{prefix}{name}_loss"]) == pytest.approx(float(plain_losses[f"{prefix}{name}_loss"]
+                                                                                * factor), rel=1e-5)
+    assert float(losses["rgb_loss"]) == pytest.approx(float(plain_losses["rgb_loss"]), rel=1e-5)
+    assert "edges_loss_multiplier" in balanced.get_metrics_dict(outputs, batch)
+    for callback in callbacks:
+        callback.run_callback_at_location(1, callback.where_to_run[0])
+    assert not balanced.balance_now  # step 1 is not a multiple of balance_every = 3
 
 
 def test_heatmap_l1_weights_responses() -> None:

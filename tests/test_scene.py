@@ -9,8 +9,10 @@ from typing import Dict, Tuple
 import cv2
 import numpy as np
 import pytest
+import torch
 
-from ssnerf_method.labels.keypoints import detect_keypoints
+from ssnerf_method.evaluation.metrics import local_maxima
+from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_response_map
 from ssnerf_method.labels.normals import normals_from_depth
 from ssnerf_method.labels.shading import lambertian_shading
 from ssnerf_method.scene.make_scene import LABEL_DIRS, MakeSceneConfig, make_scene
@@ -176,8 +178,26 @@ def test_edges_are_non_trivial(scene):
     assert 0.01 < np.mean(fractions) < 0.4
 
 
-def test_keypoint_heatmap_peaks_at_detected_keypoints(scene):
+def test_keypoint_label_is_the_response_map_of_the_written_rgb(scene):
+    """The scene's keypoint label is `keypoint_response_map` of its own 8-bit RGB (quantised as written), with
+    local maxima above 0.5 (the metric's keypoints) in the views."""
     root, meta = scene
+    peaks = 0
+    for frame in meta["frames"]:
+        label = _read(root, frame["keypoints_file_path"])
+        expected = np.round(keypoint_response_map(_read(root, frame["file_path"])) * 255)
+        np.testing.assert_array_equal(label, expected)
+        peaks += len(local_maxima(torch.from_numpy(label / 255.0), torch.ones(label.shape, dtype=torch.bool), 0.5)[0])
+    assert peaks > 0
+    assert "SURF blob-response map" in meta["ssnerf_scene"]["keypoints"]
+
+
+def test_blob_keypoint_label_peaks_at_detected_keypoints(tmp_path):
+    """`--keypoint-label blobs`: SIFT keypoints as Gaussian blobs, zero far from every keypoint."""
+    make_scene(MakeSceneConfig(tmp_path / "blobs", width=WIDTH, height=HEIGHT, num_frames=3, path_frames=0,
+                               keypoint_label="blobs"))
+    root = tmp_path / "blobs"
+    meta = json.loads((root / "transforms.json").read_text())
     total = 0
     for frame in meta["frames"]:
         heatmap = _read(root, frame["keypoints_file_path"]) / 255.0
@@ -195,6 +215,7 @@ def test_keypoint_heatmap_peaks_at_detected_keypoints(scene):
         distance = np.sqrt((xx[..., None] - positions[:, 0]) ** 2 + (yy[..., None] - positions[:, 1]) ** 2).min(-1)
         assert (heatmap[distance > 6.5] == 0).all()
     assert total > 0
+    assert "SIFT" in meta["ssnerf_scene"]["keypoints"]
 
 
 def test_pose_projects_known_points_onto_matching_depth(scene):

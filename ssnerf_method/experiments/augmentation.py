@@ -33,7 +33,7 @@ from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes, run_tag
-from ssnerf_method.experiments.report import average, headline, markdown, property_title
+from ssnerf_method.experiments.report import average, columns_of, property_columns, property_table
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.rendering.palette import semantic_palette
@@ -109,7 +109,6 @@ class AugmentationStudy(StudyConfig):
         networks: Dict[str, Any] = {}
         for prop in self.properties:
             spec = REGISTRY[prop]
-            key = headline(prop)[0]
             truth = shown_label(spec, first[index], first.num_classes, palette)
             figure_rows.setdefault("ground truth", {})[prop] = truth
             for setting, sources in SETTINGS.items():
@@ -120,7 +119,8 @@ class AugmentationStudy(StudyConfig):
                         return network.predict_image(test[i]["image"])
 
                     scores = score_predictor(predict, test, [spec], test.num_classes)
-                    results[scene].setdefault(setting, {})[prop] = scores[key]
+                    results[scene].setdefault(setting, {}).update(
+                        {column.key: scores[column.metric] for column in property_columns(prop)})
                 prediction = network.predict_image(first[index]["image"])[prop]
                 figure_rows.setdefault(setting, {})[prop] = shown(spec, prediction, palette)
                 networks[f"{prop}: {setting}"] = {"training_images": len(network.images), **history}
@@ -154,13 +154,12 @@ class AugmentationStudy(StudyConfig):
         return network, history
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
-        props = list(self.properties)
-        rows = [{"row": setting, **{prop: average([runs[setting][prop] for runs in results.values()])
-                                    for prop in props}} for setting in SETTINGS]
-        per_scene = [{"row": f"{setting} ({scene})", **runs[setting]} for scene, runs in results.items()
-                     for setting in SETTINGS]
-        titles = [property_title(prop) for prop in props]
-        text = (markdown(rows, props, titles, 4) + "\n\nPer scene\n\n" + markdown(per_scene, props, titles, 4)
+        keys = [column.key for column in columns_of(self.properties)]
+        rows = [{"row": setting, **{key: average([runs[setting].get(key) for runs in results.values()])
+                                    for key in keys}} for setting in SETTINGS]
+        per_scene = [{"row": f"{setting} ({scene})", **{key: runs[setting].get(key) for key in keys}}
+                     for scene, runs in results.items() for setting in SETTINGS]
+        text = (property_table(rows, self.properties) + "\n\nPer scene\n\n" + property_table(per_scene, self.properties)
                 + "\n\nFigure: `figure_augmentation.png`")
         return text, {"table6": rows, "per_scene": per_scene,
                       "task_network": vars(self.network_config())}

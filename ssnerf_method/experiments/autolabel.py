@@ -27,11 +27,16 @@ from ssnerf_method.data.io import StagedOutputFolder, encode_png
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, SceneBenchmark, generated_scenes
-from ssnerf_method.experiments.report import average, headline, markdown, property_title
+from ssnerf_method.experiments.report import Column, average, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
 from ssnerf_method.properties import REGISTRY, PropertySpec
 from ssnerf_method.rendering.palette import semantic_palette
+
+def suffix(measure: Column) -> str:
+    """What a score's name adds for a measure beside the headline (the headline's keep their plain names)."""
+    return "" if measure.key == measure.prop else f" ({measure.metric})"
+
 
 COLUMNS = ("weak labels, training views", "SS-NeRF, training views", "weak labels, test views", "SS-NeRF, test views")
 
@@ -135,9 +140,11 @@ class AutoLabelStudy(StudyConfig):
               spec: PropertySpec) -> Dict[str, Any]:
         """The property's headline metric of the weak labels and of the renders, against clean labels (cached)."""
         cache = bench.run_dir(run.name) / "autolabel.json"
+        measures = property_columns(spec.name)
         if cache.is_file():
-            return json.loads(cache.read_text())
-        key = headline(spec.name)[0]
+            cached = json.loads(cache.read_text())
+            if all(f"{COLUMNS[0]}{suffix(measure)}" in cached for measure in measures):  # else cached by an older version
+                return cached
         model = bench.load(run.name).model
         scores: Dict[str, Any] = {}
         for split, label in (("train", "training views"), ("test", "test views")):
@@ -153,22 +160,29 @@ class AutoLabelStudy(StudyConfig):
                 return {spec.name: outputs[spec.prediction_key].cpu()}
 
             CONSOLE.print(f"[dim]{weak.name}: scoring weak labels and renders on the clean {label}")
-            scores[f"weak labels, {label}"] = score_predictor(weak_labels, truth, [spec], classes)[key]
-            scores[f"SS-NeRF, {label}"] = score_predictor(rendered, truth, [spec], classes)[key]
+            weak_scores = score_predictor(weak_labels, truth, [spec], classes)
+            render_scores = score_predictor(rendered, truth, [spec], classes)
+            for measure in measures:
+                scores[f"weak labels, {label}{suffix(measure)}"] = weak_scores[measure.metric]
+                scores[f"SS-NeRF, {label}{suffix(measure)}"] = render_scores[measure.metric]
         cache.write_text(json.dumps(scores, indent=2))
         return scores
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
-        rows = []
-        for rate in (f"{rate:g}" for rate in self.chosen_rates()):
-            for scene, by_rate in [*results.items(), ("average", None)]:
-                row: Dict[str, Any] = {"row": f"rate {rate} ({scene})"}
-                for column in COLUMNS:
-                    values = [by_rate[rate][column]] if by_rate else [r[rate][column] for r in results.values()]
-                    row[column] = average(values)
-                rows.append(row)
-        text = (f"{property_title(self.target)} against the clean labels; weak labels: "
-                f"{REGISTRY[self.target].corruption} corruption"
-                + (f" ({self.mode})" if REGISTRY[self.target].corruption == "classes" else "") + "\n\n"
-                + markdown(rows, list(COLUMNS), list(COLUMNS), 4))
-        return text, {"autolabel": rows, "target": self.target, "rates": list(self.chosen_rates())}
+        texts, tables = [], {}
+        for index, measure in enumerate(property_columns(self.target)):
+            rows = []
+            for rate in (f"{rate:g}" for rate in self.chosen_rates()):
+                for scene, by_rate in [*results.items(), ("average", None)]:
+                    row: Dict[str, Any] = {"row": f"rate {rate} ({scene})"}
+                    for column in COLUMNS:
+                        key = column + suffix(measure)
+                        values = [by_rate[rate].get(key)] if by_rate else [r[rate].get(key) for r in results.values()]
+                        row[column] = average(values)
+                    rows.append(row)
+            tables["autolabel" if index == 0 else f"autolabel_{measure.metric}"] = rows
+            texts.append(f"{measure.title} against the clean labels; weak labels: "
+                         f"{REGISTRY[self.target].corruption} corruption"
+                         + (f" ({self.mode})" if REGISTRY[self.target].corruption == "classes" else "") + "\n\n"
+                         + markdown(rows, list(COLUMNS), list(COLUMNS), 4))
+        return "\n\n".join(texts), {**tables, "target": self.target, "rates": list(self.chosen_rates())}

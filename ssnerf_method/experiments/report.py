@@ -101,6 +101,12 @@ def markdown(rows: List[Dict], columns: Sequence[str], titles: Sequence[str], di
     return "\n".join(lines)
 
 
+def property_table(rows: List[Dict], properties: Sequence[str], digits: int = 4) -> str:
+    """Markdown of rows keyed by `columns_of(properties)`, titled by the columns."""
+    columns = columns_of(properties)
+    return markdown(rows, [column.key for column in columns], [column.title for column in columns], digits)
+
+
 def beats(rows: List[Dict], properties: Sequence[str], baseline: str) -> Dict[str, bool]:
     """Per property: does SS-NeRF's average beat the baseline's average?"""
     ours = next(row for row in rows if row["row"] == "SS-NeRF, average")
@@ -125,7 +131,6 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
     """Write `report.md` and `tables.json` into `output`; returns the report's path."""
     first = table1(results, properties)
     second = table2(results, properties)
-    columns = columns_of(properties)
     verdicts = {baseline: beats(first, properties, baseline) for baseline in ("Heuristic", "Hybrid")}
     summary = "; ".join(
         f"beats {baseline} on {sum(won.values())}/{len(won)}"
@@ -137,7 +142,7 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
         f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them "
         "(mIoU from the accumulated confusion matrix, L1 over all labelled pixels).",
         "## Table 1: scene properties",
-        markdown(first, [column.key for column in columns], [column.title for column in columns], 4),
+        property_table(first, properties),
         f"SS-NeRF (average) {summary}." if summary else "",
         "## Table 2 (left): RGB PSNR of NeRF and of each single-property SS-NeRF",
         markdown(second, ["nerf", *(f"ssnerf-{name}" for name in properties)],

@@ -36,7 +36,18 @@ from ssnerf_method.experiments.benchmark import (
     generated_scenes,
     quick_config,
 )
-from ssnerf_method.experiments.report import average, cell, headline, markdown, property_title, training_words
+from ssnerf_method.experiments.report import (
+    Column,
+    average,
+    cell,
+    columns_of,
+    headline,
+    markdown,
+    property_columns,
+    property_table,
+    property_title,
+    training_words,
+)
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 
 Results = Dict[str, Dict[str, Dict[str, Any]]]
@@ -110,12 +121,12 @@ class BranchStudy(StudyConfig):
         for branch, title in (("v", "F_dec^v"), ("nv", "F_dec^nv")):
             for scene, runs in [*results.items(), ("average", None)]:
                 row: Dict[str, Any] = {"row": f"{title} ({scene})"}
-                for prop in self.properties:
-                    key, run = headline(prop)[0], self.run_on(prop, branch).name
-                    values = [r.get(run, {}).get(key) for r in ([runs] if runs else results.values())]
-                    row[prop] = average(values)
+                for column in columns_of(self.properties):
+                    run = self.run_on(column.prop, branch).name
+                    values = [r.get(run, {}).get(column.metric) for r in ([runs] if runs else results.values())]
+                    row[column.key] = average(values)
                 rows.append(row)
-        text = markdown(rows, list(self.properties), [property_title(p) for p in self.properties], 4)
+        text = property_table(rows, self.properties)
         data: Dict[str, Any] = {"table3": rows}
         if self.normals:
             key = headline("normals")[0]
@@ -152,14 +163,15 @@ class RGBStudy(StudyConfig):
         for scene, runs in [*results.items(), ("average", None)]:
             for suffix, title in (("", "with RGB"), ("-no-rgb", "without RGB")):
                 row: Dict[str, Any] = {"row": f"{title} ({scene})"}
-                for prop in self.properties:
-                    run, key = single(prop) + suffix, headline(prop)[0]
-                    row[prop] = average([r.get(run, {}).get(key) for r in ([runs] if runs else results.values())])
+                for column in columns_of(self.properties):
+                    run = single(column.prop) + suffix
+                    row[column.key] = average([r.get(run, {}).get(column.metric)
+                                               for r in ([runs] if runs else results.values())])
                 right.append(row)
         titles = ["NeRF", *(f"SS-NeRF-{REGISTRY[prop].short}" for prop in self.properties)]
         text = ("Left: RGB PSNR\n\n" + markdown(left, left_columns, titles, 2)
                 + "\n\nRight: each property with and without the RGB loss\n\n"
-                + markdown(right, list(self.properties), [property_title(p) for p in self.properties], 4))
+                + property_table(right, self.properties))
         return text, {"table2_left": left, "table2_right": right}
 
 
@@ -191,12 +203,22 @@ class MultiTaskStudy(StudyConfig):
         return list(self.columns().values())
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        texts, data = [], {}
+        for index, column in enumerate(property_columns(self.target)):
+            text, rows = self.table(results, column)
+            texts.append(text)
+            data["table4" if index == 0 else f"table4_{column.metric}"] = rows
         key, higher = headline(self.target)
+        return "\n\n".join(texts), {**data, "target": self.target, "metric": key, "higher_is_better": higher}
+
+    def table(self, results: Results, column: Column) -> Tuple[str, List[Dict[str, Any]]]:
+        """Table 4 for one reported measure of the target: its rows and Markdown, each cell marked (+) or (−)
+        against the target alone."""
         columns = self.columns()
         rows = []
         for scene, runs in results.items():
             row: Dict[str, Any] = {"row": scene}
-            row.update({title: runs.get(run.name, {}).get(key) for title, run in columns.items()})
+            row.update({title: runs.get(run.name, {}).get(column.metric) for title, run in columns.items()})
             rows.append(row)
         rows.append({"row": "average", **{title: average([row[title] for row in rows]) for title in columns}})
         marked = []
@@ -207,14 +229,13 @@ class MultiTaskStudy(StudyConfig):
                 value = row[title]
                 mark = ""
                 if title != "alone" and value is not None and alone is not None and value != alone:
-                    mark = " (+)" if (value > alone) == higher else " (−)"
+                    mark = " (+)" if (value > alone) == column.higher else " (−)"
                 cells[title] = cell(value, 4) + mark
             marked.append(cells)
         lines = ["| | " + " | ".join(columns) + " |", "|---|" + "---|" * len(columns)]
         lines += ["| " + cells["row"] + " | " + " | ".join(cells[title] for title in columns) + " |"
                   for cells in marked]
-        text = f"{property_title(self.target)}; (+) better, (−) worse than the target alone\n\n" + "\n".join(lines)
-        return text, {"table4": rows, "target": self.target, "metric": key, "higher_is_better": higher}
+        return f"{column.title}; (+) better, (−) worse than the target alone\n\n" + "\n".join(lines), rows
 
 
 def commit() -> Optional[str]:

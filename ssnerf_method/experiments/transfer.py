@@ -27,7 +27,7 @@ from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes
-from ssnerf_method.experiments.report import average, headline, markdown, property_title
+from ssnerf_method.experiments.report import average, headline, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.properties import REGISTRY
 from ssnerf_method.rendering.palette import semantic_palette
@@ -144,13 +144,17 @@ class TransferStudy(StudyConfig):
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
         key = headline(self.target)[0]
         columns = [*results, "average"]
-        rows = []
-        for title in [LIMITED, *(self.row(source) for source in self.sources)]:
-            values = {scene: runs.get(title, {}).get(key) for scene, runs in results.items()}
-            rows.append({"row": title, **values, "average": average(list(values.values()))})
+        tables, texts = {}, []
+        for index, measure in enumerate(property_columns(self.target)):
+            rows = []
+            for title in [LIMITED, *(self.row(source) for source in self.sources)]:
+                values = {scene: runs.get(title, {}).get(measure.metric) for scene, runs in results.items()}
+                rows.append({"row": title, **values, "average": average(list(values.values()))})
+            tables["table5" if index == 0 else f"table5_{measure.metric}"] = rows
+            texts.append(f"{measure.title} on the test views; the target sees {self.views} training views\n\n"
+                         + markdown(rows, columns, columns, 4))
         views = "\n".join(f"- {scene}: {', '.join(names)}" for scene, names in getattr(self, "chosen", {}).items())
-        text = (f"{property_title(self.target)} on the test views; the target sees {self.views} training views\n\n"
-                + markdown(rows, columns, columns, 4) + f"\n\nTraining views of the target:\n\n{views}\n\nFigures: "
+        text = ("\n\n".join(texts) + f"\n\nTraining views of the target:\n\n{views}\n\nFigures: "
                 + ", ".join(f"`figure_transfer_{scene}.png`" for scene in results))
-        return text, {"table5": rows, "target": self.target, "metric": key, "views": self.views,
+        return text, {**tables, "target": self.target, "metric": key, "views": self.views,
                       "train_views": getattr(self, "chosen", {})}

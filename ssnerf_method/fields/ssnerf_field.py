@@ -53,6 +53,26 @@ class BranchDecoder(nn.Module):
         return dict(zip(self.names, torch.split(raw, self.channels, dim=-1)))
 
 
+class PropertyDecoders(nn.Module):
+    """A decoder branch with one MLP per property instead of one shared by all: the same inputs and outputs as
+    `BranchDecoder`, but no property competes with another (RGB included) for the hidden units."""
+
+    def __init__(self, in_dim: int, width: int, num_layers: int, head_channels: Dict[str, int]) -> None:
+        super().__init__()
+        self.names = list(head_channels)
+        self.decoders = nn.ModuleDict(
+            {name: BranchDecoder(in_dim, width, num_layers, {name: channels}) for name, channels in head_channels.items()}
+        )
+
+    def forward(self, inputs: Float[Tensor, "*bs in_dim"]) -> Dict[str, Tensor]:
+        return {name: decoder(inputs)[name] for name, decoder in self.decoders.items()}
+
+
+DecoderSharing = Literal["branch", "property"]
+"""`branch`: one MLP per decoder branch, shared by its properties (the paper's F_dec^v and F_dec^nv); `property`: one
+MLP per property on its branch's inputs."""
+
+
 class SSNeRFField(Field):
     """Shared encoder plus the two property decoders.
 
@@ -61,7 +81,8 @@ class SSNeRFField(Field):
         num_classes: number of semantic classes (head width of class-valued properties).
         encoder: the shared position encoder F_enc.
         direction_encoding: "nerf" (4-frequency sinusoids, the paper's) or "sh" (spherical harmonics, degree 4).
-        decoder_width, decoder_layers: size of each decoder branch's MLP.
+        decoder_width, decoder_layers: size of each decoder MLP.
+        decoder_sharing: one decoder MLP per branch (the paper's) or one per property.
         pose_conditioned: feed the encoded camera pose to F_dec^nv (the paper's normal modelling).
         density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
@@ -76,6 +97,7 @@ class SSNeRFField(Field):
         direction_encoding: Literal["nerf", "sh"] = "nerf",
         decoder_width: int = 128,
         decoder_layers: int = 1,
+        decoder_sharing: DecoderSharing = "branch",
         pose_conditioned: bool = False,
         density_activation: Literal["relu", "trunc_exp"] = "relu",
         density_noise: float = 0.0,
@@ -102,10 +124,11 @@ class SSNeRFField(Field):
             "nv": encoder.feature_dim + (self.pose_encoding.get_out_dim() if self.pose_encoding is not None else 0),
         }
         self.decoders = nn.ModuleDict()
+        decoder_type = BranchDecoder if decoder_sharing == "branch" else PropertyDecoders
         for branch, in_dim in branch_inputs.items():
             heads = {spec.name: spec.kind.head_channels(num_classes) for spec in specs if spec.branch == branch}
             if heads:
-                self.decoders[branch] = BranchDecoder(in_dim, decoder_width, decoder_layers, heads)
+                self.decoders[branch] = decoder_type(in_dim, decoder_width, decoder_layers, heads)
 
     def get_density(self, ray_samples: RaySamples) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
         positions = self.spatial_distortion(ray_samples.frustums.get_positions())

@@ -28,9 +28,9 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.dataset import DEPTH_KEY
 from ssnerf_method.evaluation.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
-from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField, add_pose_metadata
-from ssnerf_method.model.encoder_transfer import load_encoders
-from ssnerf_method.model.gradient_scaling import scale_gradient
+from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, DecoderSharing, SSNeRFField, add_pose_metadata
+from ssnerf_method.model.encoder_transfer import encoder_modules, load_encoders
+from ssnerf_method.model.loss_balancing import LossBalancer
 from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
@@ -90,6 +90,9 @@ class SSNeRFModelConfig(ModelConfig):
     """Width of each decoder branch."""
     decoder_layers: int = 1
     """Hidden layers of each decoder branch."""
+    decoder_sharing: DecoderSharing = "branch"
+    """"branch": one decoder MLP per branch shared by its properties (the paper's F_dec^v, F_dec^nv); "property": one
+    MLP per property on its branch's inputs, so RGB and the properties never share hidden units."""
     density_noise: float = 1.0
     """Std of noise added to raw density while training (NeRF); 0 disables."""
     density_activation: Literal["relu", "trunc_exp"] = "relu"
@@ -118,10 +121,12 @@ class SSNeRFModelConfig(ModelConfig):
     """Far plane, in the dataparser's scaled units (cameras lie within [-1, 1] after scaling)."""
     implementation: Literal["tcnn", "torch"] = "torch"
     """Hash grid implementation (tcnn needs tiny-cuda-nn on CUDA)."""
-    property_geometry_gradient: float = 1.0
-    """Scale of the gradient every property loss (all but RGB's) sends into the rendering weights, i.e. into density
-    and so geometry: 1 is the paper's joint training, 0 lets properties shape only their features while RGB alone
-    shapes geometry. The rendered values are the same either way."""
+    balance_ratio: Optional[float] = None
+    """Gradient-norm balancing (`model/loss_balancing.py`): if set, every `balance_every` steps each property's loss is
+    scaled (by at most 1) so that its gradient into F_enc is at most this multiple of RGB's. None trains the paper's
+    fixed weighted sum."""
+    balance_every: int = 100
+    """Steps between two measurements of the balancing's gradient norms (each costs one backward pass per loss)."""
     encoder_init: Optional[Path] = None
     """Checkpoint (.ckpt) of a trained SS-NeRF of the same method whose F_enc initialises this one's at the first step;
     decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
@@ -155,6 +160,11 @@ class SSNeRFModel(Model):
         self.class_spec = next((spec for spec in self.specs if isinstance(spec.kind, ClassKind)), None)
         self.semantic_classes = None if self.class_spec is None else SemanticViewerPanel(self.class_names, self.palette)
 
+        balanced = [spec.name for spec in self.specs if spec is not self.rgb_spec]
+        self.balancer: Optional[LossBalancer] = None
+        if self.config.balance_ratio is not None and balanced:
+            self.balancer = LossBalancer(balanced, self.config.balance_ratio)
+        self.balance_now = False
         self.sampling: RaySampling = self._build_sampling()
         self.collider = NearFarCollider(near_plane=self.config.near_plane, far_plane=self.config.far_plane)
         self.renderer_depth = DepthRenderer(method="median")
@@ -175,6 +185,7 @@ class SSNeRFModel(Model):
             direction_encoding=self.config.direction_encoding,
             decoder_width=self.config.decoder_width,
             decoder_layers=self.config.decoder_layers,
+            decoder_sharing=self.config.decoder_sharing,
             pose_conditioned=self.config.normals_mode == "pose",
             density_activation=self.config.density_activation,
             density_noise=self.config.density_noise,
@@ -207,10 +218,16 @@ class SSNeRFModel(Model):
             TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.sampling.before_training_step),
             TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self.sampling.after_training_step),
         ]
+        if self.balancer is not None:
+            callbacks.append(TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.schedule_balance))
         if self.config.encoder_init is not None:  # at step 0 only: a resumed run keeps its own trained weights
             callbacks.append(TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.init_encoders,
                                               iters=(0,)))
         return callbacks
+
+    def schedule_balance(self, step: int) -> None:
+        """Ask the next loss computation to re-measure the balancing's gradient norms (every `balance_every` steps)."""
+        self.balance_now = step % self.config.balance_every == 0
 
     def init_encoders(self, step: int) -> None:
         """Copy F_enc from `encoder_init` (knowledge transfer); the trainer calls it before step 0."""
@@ -219,13 +236,9 @@ class SSNeRFModel(Model):
         CONSOLE.print(f"F_enc ({', '.join(loaded)}) initialised from {self.config.encoder_init}")
 
     def _render_level(self, level: SampleLevel, context: RenderContext, prefix: str) -> Dict[str, Tensor]:
-        """Render every property of one sample level into `prefix + prediction_key` outputs; the properties' losses
-        reach the weights scaled by `property_geometry_gradient`, RGB's in full."""
-        property_weights = scale_gradient(level.weights, self.config.property_geometry_gradient)
+        """Render every property of one sample level into `prefix + prediction_key` outputs."""
         return {
-            prefix + spec.prediction_key: spec.kind.render(
-                level.field_outputs[spec.name], level.weights if spec is self.rgb_spec else property_weights, context
-            )
+            prefix + spec.prediction_key: spec.kind.render(level.field_outputs[spec.name], level.weights, context)
             for spec in self.specs
         }
 
@@ -270,6 +283,8 @@ class SSNeRFModel(Model):
         metrics = {"psnr": -10.0 * torch.log10(mse)}
         if self.training and "weights_list" in outputs:
             metrics["distortion"] = distortion_loss(outputs["weights_list"], outputs["ray_samples_list"])
+        if self.training and self.balancer is not None:
+            metrics.update({f"{name}_loss_multiplier": self.balancer.multiplier(name) for name in self.balancer.names})
         return metrics
 
     def get_loss_dict(self, outputs, batch, metrics_dict=None) -> Dict[str, Tensor]:
@@ -281,6 +296,15 @@ class SSNeRFModel(Model):
             for prefix in self.level_prefixes:
                 prediction = outputs[prefix + spec.prediction_key]
                 losses[f"{prefix}{spec.name}_loss"] = spec.weight * LOSSES[spec.loss](prediction, label, valid)
+        if self.balancer is not None and self.training:
+            if self.balance_now:
+                self.balance_now = False
+                encoders = [p for module in encoder_modules(self).values() for p in module.parameters()]
+                finals = {name: losses[f"{name}_loss"] for name in self.balancer.names}
+                self.balancer.update(losses[f"{self.rgb_spec.name}_loss"], finals, encoders)
+            for name in self.balancer.names:
+                for prefix in self.level_prefixes:
+                    losses[f"{prefix}{name}_loss"] = losses[f"{prefix}{name}_loss"] * self.balancer.multiplier(name)
         if self.training and "weights_list" in outputs:
             losses["interlevel_loss"] = self.config.interlevel_loss_mult * interlevel_loss(
                 outputs["weights_list"], outputs["ray_samples_list"]
