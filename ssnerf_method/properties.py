@@ -26,7 +26,7 @@ from nerfstudio.utils import colormaps
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
 
-LossName = Literal["mse", "l1", "cross_entropy", "heatmap_l1"]
+LossName = Literal["mse", "l1", "cross_entropy"]
 """Names of the losses in `ssnerf_method/model/losses.py`."""
 
 SEMANTIC_IGNORE = 255

@@ -1,5 +1,5 @@
 """Multi-task balancing: each property's loss is scaled so that its gradient into F_enc is at most the configured
-multiple of RGB's, and the keypoint heatmap loss weights the responses as documented."""
+multiple of RGB's."""
 
 from __future__ import annotations
 
@@ -9,7 +9,6 @@ import torch
 from nerfstudio.data.scene_box import SceneBox
 
 from ssnerf_method.model.loss_balancing import LossBalancer
-from ssnerf_method.model.losses import HEATMAP_POSITIVE_WEIGHT, LOSSES
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 
 from test_properties import make_bundle
@@ -85,14 +84,26 @@ def test_model_scales_every_level_of_a_property_loss_by_its_multiplier() -> None
     assert not balanced.balance_now  # step 1 is not a multiple of balance_every = 3
 
 
-def test_heatmap_l1_weights_responses() -> None:
-    label = torch.tensor([[0.0], [1.0], [0.5], [0.0]])
-    prediction = torch.tensor([[0.2], [0.8], [0.5], [0.0]], requires_grad=True)
-    valid = torch.tensor([True, True, True, False])
-    loss = LOSSES["heatmap_l1"](prediction, label, valid)
-    expected = torch.tensor([1.0, 1.0 + HEATMAP_POSITIVE_WEIGHT, 1.0 + HEATMAP_POSITIVE_WEIGHT * 0.5])
-    assert float(loss) == pytest.approx(float((expected * torch.tensor([0.2, 0.2, 0.0])).sum() / expected.sum()))
-    loss.backward()
-    # the same error costs 1 + 9 = 10 times more on a response of 1 than on background; the unlabelled ray nothing
-    assert float(prediction.grad[1, 0]) == pytest.approx(-10.0 * float(prediction.grad[0, 0]))
-    assert float(prediction.grad[3, 0]) == 0.0
+def test_property_decoders_share_nothing_between_properties() -> None:
+    """`decoder_sharing=property`: each property has its own MLP on its branch's inputs, so RGB's output has no
+    gradient in edges' decoder; with the paper's branch sharing the two share the F_dec^v MLP."""
+    from ssnerf_method.fields.encoders import HashGridEncoder
+    from ssnerf_method.fields.ssnerf_field import SSNeRFField
+    from ssnerf_method.properties import resolve_properties
+
+    from test_properties import NUM_CLASSES, make_samples
+
+    specs = resolve_properties(["semantics", "edges"])
+    samples = make_samples(make_bundle())
+    for sharing, shared in (("property", False), ("branch", True)):
+        torch.manual_seed(0)
+        encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16, feature_dim=8)
+        field = SSNeRFField(specs, NUM_CLASSES, encoder, decoder_width=16, decoder_sharing=sharing)
+        outputs = field(samples)
+        assert outputs["rgb"].shape[-1] == 3 and outputs["edges"].shape[-1] == 1
+        assert outputs["semantics"].shape[-1] == NUM_CLASSES
+        v = field.decoders["v"]
+        edges_parameters = list(v.decoders["edges"].mlp.parameters()) if sharing == "property" else list(v.mlp.parameters())
+        gradients = torch.autograd.grad(outputs["rgb"].sum(), edges_parameters, allow_unused=True)
+        reached = any(g is not None and g.abs().sum() > 0 for g in gradients)
+        assert reached == shared

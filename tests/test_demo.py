@@ -12,7 +12,8 @@ from ssnerf_method.scripts.demo import DemoConfig, run
 
 METRICS = {"psnr", "ssim", "semantics_miou", "semantics_acc", "normals_l1", "normals_angle_mean_deg",
            "normals_angle_median_deg", "normals_within_11_25_deg", "normals_within_22_5_deg", "normals_within_30_deg",
-           "shading_l1", "keypoints_l1", "edges_l1"}
+           "shading_l1", "keypoints_l1", "edges_l1", *(f"{name}_{measure}" for name in ("keypoints", "edges")
+                                                          for measure in ("f1", "f1_threshold", "ap"))}
 MODEL_ONLY = {"semantics_miou_per_view", "depth_l1", "depth_rmse"}  # the copied labels have no depth
 PROPERTIES = ("rgb", "semantics", "normals", "shading", "keypoints", "edges")
 

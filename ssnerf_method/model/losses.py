@@ -31,23 +31,6 @@ def l1_loss(prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"],
     return F.l1_loss(*_masked(prediction, label, valid))
 
 
-HEATMAP_POSITIVE_WEIGHT = 9.0
-"""Extra weight of a heatmap pixel per unit of its label: a pixel labelled 1 counts 1 + 9 = 10 times one labelled 0."""
-
-
-def heatmap_l1_loss(
-    prediction: Float[Tensor, "rays 1"], label: Float[Tensor, "rays 1"], valid: Bool[Tensor, "rays"]
-) -> Tensor:
-    """L1 weighted towards the responses, (1 + 9 label) |prediction - label| over the weights' sum: on a map that is
-    mostly zero the plain L1 is lowest for an empty render; the weights make the peaks worth fitting, as
-    keypoint-heatmap detectors weight their positives."""
-    if not valid.any():
-        return prediction.sum() * 0.0
-    prediction, label = _masked(prediction, label, valid)
-    weights = 1.0 + HEATMAP_POSITIVE_WEIGHT * label
-    return (weights * (prediction - label).abs()).sum() / weights.sum()
-
-
 def cross_entropy_loss(
     logits: Float[Tensor, "rays classes"], label: Float[Tensor, "rays 1"], valid: Bool[Tensor, "rays"]
 ) -> Tensor:
@@ -61,5 +44,4 @@ LOSSES: Dict[str, Callable[[Tensor, Tensor, Tensor], Tensor]] = {
     "mse": mse_loss,
     "l1": l1_loss,
     "cross_entropy": cross_entropy_loss,
-    "heatmap_l1": heatmap_l1_loss,
 }
