@@ -164,14 +164,26 @@ def dilate(mask: Bool[Tensor, "*bs h w"], radius: int) -> Bool[Tensor, "*bs h w"
     return grown.reshape(mask.shape) > 0
 
 
-class EdgeMetric(L1Metric):
+class SparseMapMetric(L1Metric):
+    """L1 plus F1 and AP of a sparse map (edges, keypoints): the subclass counts, per threshold of
+    `SPARSE_THRESHOLDS`, predictions (`predicted`), those near the truth (`predicted_hits`), true items (`truth`)
+    and those found (`truth_hits`)."""
+
+    reported = (("l1", False), ("f1", True), ("ap", True))
+
+    def summarize(self, statistics: Statistics) -> Dict[str, float]:
+        values = super().summarize(statistics)
+        values.update(precision_recall_summary(statistics["predicted"], statistics["predicted_hits"],
+                                               statistics["truth"], statistics["truth_hits"]))
+        return values
+
+
+class EdgeMetric(SparseMapMetric):
     """L1 (the paper's) plus boundary F1 and average precision: the rendered map cut at each threshold is matched
     to the label's edges (label >= 0.5) with a tolerance of `EDGE_TOLERANCE_PX`. Precision is the share of
     predicted edge pixels near a true one, recall the share of true edge pixels near a predicted one; an empty map
     scores 0, the label itself 1, and a map shifted by one pixel still 1. Counts add over the views, so the split's
     F1 uses one threshold for all of them."""
-
-    reported = (("l1", False), ("f1", True), ("ap", True))
 
     def statistics(
         self, prediction: Float[Tensor, "h w 1"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
@@ -183,18 +195,12 @@ class EdgeMetric(L1Metric):
         near_truth = dilate(truth, EDGE_TOLERANCE_PX)
         near_predicted = dilate(predicted, EDGE_TOLERANCE_PX)
         statistics.update(
-            edge_predicted=predicted.sum(dim=(1, 2)).double().cpu(),
-            edge_predicted_hits=(predicted & near_truth[None]).sum(dim=(1, 2)).double().cpu(),
-            edge_truth=truth.sum().double().cpu(),
-            edge_truth_hits=(near_predicted & truth[None]).sum(dim=(1, 2)).double().cpu(),
+            predicted=predicted.sum(dim=(1, 2)).double().cpu(),
+            predicted_hits=(predicted & near_truth[None]).sum(dim=(1, 2)).double().cpu(),
+            truth=truth.sum().double().cpu(),
+            truth_hits=(near_predicted & truth[None]).sum(dim=(1, 2)).double().cpu(),
         )
         return statistics
-
-    def summarize(self, statistics: Statistics) -> Dict[str, float]:
-        values = super().summarize(statistics)
-        values.update(precision_recall_summary(statistics["edge_predicted"], statistics["edge_predicted_hits"],
-                                               statistics["edge_truth"], statistics["edge_truth_hits"]))
-        return values
 
 
 def local_maxima(values: Float[Tensor, "h w"], valid: Bool[Tensor, "h w"], floor: float) -> Tuple[Tensor, Tensor]:
@@ -228,13 +234,11 @@ def match_keypoints(predicted: Tensor, scores: Tensor, truth: Tensor, tolerance:
     return hits
 
 
-class KeypointMetric(L1Metric):
+class KeypointMetric(SparseMapMetric):
     """L1 (the paper's) plus keypoint F1 and average precision. True keypoints are the label's local maxima above
     `KEYPOINT_LABEL_PEAK`; predicted keypoints the render's local maxima scoring above each threshold; a prediction
     within `KEYPOINT_TOLERANCE_PX` of an unmatched true keypoint is a hit. An empty map scores 0 and the label itself
     1, which its L1 cannot tell apart on a map that is mostly zero."""
-
-    reported = (("l1", False), ("f1", True), ("ap", True))
 
     def statistics(
         self, prediction: Float[Tensor, "h w 1"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
@@ -244,19 +248,14 @@ class KeypointMetric(L1Metric):
         predicted, scores = local_maxima(prediction[..., 0], valid, float(SPARSE_THRESHOLDS[0]) - 1e-9)
         hits = match_keypoints(predicted, scores, truth, KEYPOINT_TOLERANCE_PX)
         above = scores.double().cpu()[None] >= SPARSE_THRESHOLDS[:, None] - 1e-9
+        matched = (above & hits[None]).sum(dim=1).double()  # one-to-one: hits are matched keypoints too
         statistics.update(
-            keypoint_predicted=above.sum(dim=1).double(),
-            keypoint_predicted_hits=(above & hits[None]).sum(dim=1).double(),
-            keypoint_truth=torch.tensor(float(len(truth)), dtype=torch.float64),
-            keypoint_truth_hits=(above & hits[None]).sum(dim=1).double(),
+            predicted=above.sum(dim=1).double(),
+            predicted_hits=matched,
+            truth=torch.tensor(float(len(truth)), dtype=torch.float64),
+            truth_hits=matched,
         )
         return statistics
-
-    def summarize(self, statistics: Statistics) -> Dict[str, float]:
-        values = super().summarize(statistics)
-        values.update(precision_recall_summary(statistics["keypoint_predicted"], statistics["keypoint_predicted_hits"],
-                                               statistics["keypoint_truth"], statistics["keypoint_truth_hits"]))
-        return values
 
 
 class NormalMetric(L1Metric):
