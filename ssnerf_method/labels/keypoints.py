@@ -2,10 +2,11 @@
 
 - `response` (default): the dense response map of SURF's blob detector, as Taskonomy's keypoint2d images are: the
   positive determinant of the box-filter Hessian, largest over the first octave's filter sizes, mapped into [0, 1)
-  by one fixed curve, so that the same blob gives the same value in every view. Its local maxima above 0.5 are the
-  blobs SURF detects at `RESPONSE_AT_HALF`. A field learns it like any dense map.
+  by one fixed curve, so that the same blob gives the same value in every view. Its local maxima above 0.5 are blobs
+  whose response exceeds `RESPONSE_AT_HALF` (roughly SURF's detections at that threshold). A field learns it like
+  any dense map (keypoint F1 0.57-0.63 after 1000 `ssnerf-lite` steps on the default scenes).
 - `blobs`: detector keypoints (SURF, SIFT or ORB) splatted as Gaussian blobs whose peak is the response over the
-  image's strongest. About 2% of pixels and different from view to view: a field trained on it renders an empty map.
+  image's strongest; sparse, and the blobs differ from view to view: fields trained on it render an empty map.
 """
 
 from __future__ import annotations
