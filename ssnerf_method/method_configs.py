@@ -7,6 +7,10 @@ cores enough (see ../shared/notes/cpu-speed.md in the project's notes).
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
 import torch
 
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
@@ -16,8 +20,25 @@ from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from ssnerf_method.data.datamanager import SSNeRFDataManagerConfig
+from ssnerf_method.errors import UserError
 from ssnerf_method.evaluation.pipeline import SSNeRFPipelineConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
+
+
+@dataclass
+class SSNeRFTrainerConfig(TrainerConfig):
+    """nerfstudio's trainer config; a checkpoint folder that holds no checkpoint (`ns-eval`, `ns-render`, or
+    `ns-train --load-dir`) is one clear error instead of nerfstudio's `IndexError`."""
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        if name == "load_dir" and value is not None:
+            folder = Path(value)
+            if folder.is_dir() and not any(folder.glob("step-*.ckpt")):
+                raise UserError(
+                    f"{folder}: holds no checkpoint (step-*.ckpt). Point at a run that saved one (training saves "
+                    "every steps_per_save steps and at its end), or train longer."
+                )
+        super().__setattr__(name, value)
 
 
 def default_machine() -> MachineConfig:
@@ -25,7 +46,7 @@ def default_machine() -> MachineConfig:
     return MachineConfig(device_type="cuda" if torch.cuda.is_available() else "cpu")
 
 
-ssnerf_config = TrainerConfig(
+ssnerf_config = SSNeRFTrainerConfig(
     method_name="ssnerf",
     steps_per_eval_batch=500,
     steps_per_eval_image=2500,
@@ -48,7 +69,7 @@ ssnerf_config = TrainerConfig(
     vis="viewer+tensorboard",
 )
 
-ssnerf_lite_config = TrainerConfig(
+ssnerf_lite_config = SSNeRFTrainerConfig(
     method_name="ssnerf-lite",
     steps_per_eval_batch=500,
     steps_per_eval_image=5000,

@@ -23,6 +23,8 @@ from torch import Tensor
 from nerfstudio.model_components.renderers import NormalsRenderer, RGBRenderer, SemanticRenderer
 from nerfstudio.utils import colormaps
 
+from ssnerf_method.errors import UserError
+
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
 
@@ -33,7 +35,14 @@ SEMANTIC_IGNORE = 255
 """Class id of an unlabelled pixel on disk; its rays carry no semantic loss."""
 
 
-class LabelFileError(ValueError):
+NORMAL_LENGTH_TOLERANCE = 0.1
+"""A labelled normal is a unit vector when its decoded length is within this of 1 (8-bit rounding moves it < 0.01)."""
+MAX_NON_UNIT_FRACTION = 0.05
+"""A normals label with more labelled pixels off unit length than this is not a normals map (anti-aliased edges and
+resizing shorten a few)."""
+
+
+class LabelFileError(UserError, ValueError):
     """A property file that cannot be used for training; the message names the file and the fix."""
 
 
@@ -49,6 +58,9 @@ class RenderContext:
 
 def _read_image(path: Path) -> np.ndarray:
     """Read a PNG as stored (no mode conversion), with one clear error if it is missing or unreadable."""
+    if path.is_dir():
+        raise LabelFileError(f"{path}: listed in transforms.json as a label file but is a folder. Point the key at "
+                             "the frame's label image.")
     if not path.is_file():
         raise LabelFileError(f"{path}: file listed in transforms.json does not exist. Add the file or remove its key.")
     try:
@@ -234,6 +246,13 @@ class NormalKind(PropertyKind):
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
         array, labelled = _read_uint8(path, width, height, 3, "normals ((n+1)/2 per channel)", alpha=True)
         values = array.astype(np.float32) / 255.0
+        lengths = np.linalg.norm(values[labelled] * 2.0 - 1.0, axis=-1)
+        off = float(np.mean(np.abs(lengths - 1.0) > NORMAL_LENGTH_TOLERANCE)) if lengths.size else 0.0
+        if off > MAX_NON_UNIT_FRACTION:
+            raise LabelFileError(
+                f"{path}: {off:.0%} of the labelled pixels are not unit normals (an all-zero image decodes to "
+                "(-1, -1, -1)). Store unit camera-frame normals n as (n + 1) / 2 * 255, alpha 0 where there is none."
+            )
         values[~labelled] = np.nan
         return torch.from_numpy(values)
 

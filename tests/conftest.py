@@ -29,7 +29,8 @@ def look_at(position: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 
 def write_tiny_dataset(root: Path, num_frames: int = 6, seed: int = 0) -> Dict:
-    """Write `num_frames` random 16x12 frames with every property; returns the transforms dict."""
+    """Write `num_frames` random 16x12 frames with every property (random unit normals); returns the transforms
+    dict."""
     rng = np.random.default_rng(seed)
     for folder in ("images", "semantics", "normals", "shading", "keypoints", "edges", "depth"):
         (root / folder).mkdir(parents=True, exist_ok=True)
@@ -40,7 +41,10 @@ def write_tiny_dataset(root: Path, num_frames: int = 6, seed: int = 0) -> Dict:
         c2w = look_at(np.array([np.cos(angle), np.sin(angle), 0.2]), np.zeros(3))
         Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8)).save(root / "images" / name)
         Image.fromarray(rng.integers(0, len(CLASSES), (HEIGHT, WIDTH), dtype=np.uint8)).save(root / "semantics" / name)
-        Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8)).save(root / "normals" / name)
+        normals = rng.normal(size=(HEIGHT, WIDTH, 3))
+        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
+        encoded = np.round((normals + 1.0) / 2.0 * 255.0).astype(np.uint8)
+        Image.fromarray(encoded).save(root / "normals" / name)
         for folder in ("shading", "keypoints", "edges"):
             Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH), dtype=np.uint8)).save(root / folder / name)
         Image.fromarray(np.full((HEIGHT, WIDTH), 1500, dtype=np.uint16)).save(root / "depth" / name)

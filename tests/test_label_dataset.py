@@ -1,6 +1,6 @@
 """`ssnerf-label` on small nerfstudio datasets: with depth (the default scene stripped of its labels), without depth (an
-`ns-process-data`-like capture that then trains), semantics given as ids or colours, and every bad-input case, each of
-which must leave the dataset folder byte-for-byte as it was."""
+`ns-process-data`-like capture that then trains), semantics given as ids or colours, provenance, output elsewhere and
+a read-only dataset (the bad-input cases are `test_validation.py`'s)."""
 
 from __future__ import annotations
 
@@ -273,41 +273,49 @@ def test_blender_folder_gets_a_nerfstudio_transforms(tmp_path: Path) -> None:
     assert "edges" in outputs.metadata["available_properties"]
 
 
-def corrupt(path: Path) -> None:
-    path.write_bytes(b"\x89PNG\r\n\x1a\n not really")
+def test_provenance_only_for_the_labels_it_made(scene: Path, tmp_path: Path) -> None:
+    """Given normals are kept and not claimed; labels made on an earlier run keep their record."""
+    data = strip_labels(scene, tmp_path / "data", keep_depth=False)
+    meta = json.loads((data / "transforms.json").read_text())
+    for frame in meta["frames"]:
+        frame["normals_file_path"] = frame["file_path"].replace("images/", "normals/")
+    (data / "transforms.json").write_text(json.dumps(meta))
+    run(data, keypoints=False, shading=False)
+    record = json.loads((data / "transforms.json").read_text())["ssnerf_label"]
+    assert set(record) == {"tool", "edges"}
+    run(data, edges=False, shading=False)
+    assert set(json.loads((data / "transforms.json").read_text())["ssnerf_label"]) == {"tool", "edges", "keypoints"}
 
 
-BAD_INPUTS = {
-    "wrong folder": (lambda root: root / "nope", "nope: not a folder"),
-    "no transforms": (lambda root: (root / "transforms.json").unlink() or root, "transforms.json: missing"),
-    "missing frame": (lambda root: (root / "images/frame_00002.png").unlink() or root,
-                      "frame_00002.png: image listed in the dataset does not exist"),
-    "mixed sizes": (lambda root: Image.new("RGB", (20, 10)).save(root / "images/frame_00003.png") or root,
-                    "frame_00003.png: image is 20x10 but transforms.json gives its camera as 64x48"),
-    "unreadable image": (lambda root: corrupt(root / "images/frame_00001.png") or root,
-                         "frame_00001.png: image cannot be decoded"),
-    "depth all zero": (lambda root: Image.fromarray(np.zeros((48, 64), np.uint16)).save(root / "depth/frame_00004.png")
-                       or root, "frame_00004.png: depth is zero"),
-    "unsupported camera": (lambda root: edit(root, camera_model="KANNALA_BRANDT") or root,
-                           "camera_model 'KANNALA_BRANDT' .* is not one nerfstudio supports"),
-}
-
-
-def edit(root: Path, **values) -> None:
-    meta = json.loads((root / "transforms.json").read_text())
-    meta.update(values)
-    (root / "transforms.json").write_text(json.dumps(meta))
-
-
-@pytest.mark.parametrize("case", list(BAD_INPUTS))
-def test_bad_input_is_one_clear_error_and_changes_nothing(scene: Path, tmp_path: Path, case: str) -> None:
+def test_output_in_another_folder_points_back_at_the_data(scene: Path, tmp_path: Path) -> None:
+    """`--output elsewhere/transforms.json`: labels beside it, every other path rewritten; the dataset untouched."""
     data = strip_labels(scene, tmp_path / "data")
-    make_bad, message = BAD_INPUTS[case]
-    target = make_bad(data)
-    before = snapshot(data) if data.is_dir() else {}
-    with pytest.raises(DatasetInputError, match=message):
-        run(target)
-    assert (snapshot(data) if data.is_dir() else {}) == before
+    before = snapshot(data)
+    report = run(data, output=str(tmp_path / "labelled" / "transforms.json"), keypoints=False)
+    assert snapshot(data) == before
+    meta = json.loads((tmp_path / "labelled" / "transforms.json").read_text())
+    assert meta["frames"][0]["file_path"] == "../data/images/frame_00000.png"
+    assert meta["frames"][0]["edges_file_path"].startswith(LABEL_FOLDER)
+    assert meta["test_filenames"][0].startswith("../data/images/")
+    outputs = SSNeRFDataParserConfig(data=tmp_path / "labelled").setup().get_dataparser_outputs("train")
+    assert set(outputs.metadata["available_properties"]) == {"normals", "shading", "edges"}
+    assert report.transforms_path == tmp_path / "labelled" / "transforms.json"
+
+
+def test_read_only_dataset_suggests_output_elsewhere(scene: Path, tmp_path: Path, monkeypatch) -> None:
+    """The first write into a read-only folder (made to fail here: root may write anywhere) gives one line."""
+    import ssnerf_method.data.io as io
+
+    data = strip_labels(scene, tmp_path / "data")
+    before = snapshot(data)
+
+    def refuse(prefix: str, dir: Path) -> str:
+        raise PermissionError(13, "Permission denied", str(dir))
+
+    monkeypatch.setattr(io.tempfile, "mkdtemp", refuse)
+    with pytest.raises(DatasetInputError, match=f"{data}: cannot write there.*--output /writable/folder/transforms.json"):
+        run(data)
+    assert snapshot(data) == before
 
 
 def test_cli_prints_one_line_and_exits_1(tmp_path: Path) -> None:

@@ -16,7 +16,8 @@ from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.io import load_from_json
 
 from ssnerf_method.fields.ssnerf_field import add_pose_metadata
-from ssnerf_method.properties import REGISTRY, LabelFileError
+from ssnerf_method.data.validate import transforms_file, validate_dataset
+from ssnerf_method.properties import REGISTRY
 
 
 @dataclass
@@ -24,21 +25,23 @@ class SSNeRFDataParserConfig(NerfstudioDataParserConfig):
     """nerfstudio's dataparser plus the SS-NeRF property files."""
 
     _target: Type = field(default_factory=lambda: SSNeRFDataParser)
+    check_contents: bool = True
+    """Validation reads the label pixels (class ids in range, unit normals, depth not all zero) besides every file's
+    header; off, only headers are read before training and a bad label stops the run when it is loaded."""
 
 
 class SSNeRFDataParser(Nerfstudio):
-    """Reads the property keys of each frame and checks them against the class list."""
+    """Validates the dataset (`data/validate.py`), then reads the property keys of each frame."""
 
     config: SSNeRFDataParserConfig
+    _validated: bool = False
 
     def _generate_dataparser_outputs(self, split: str = "train", **kwargs) -> DataparserOutputs:
+        if not self._validated:  # once per parser: train and eval splits share the files
+            validate_dataset(self.config.data, contents=self.config.check_contents).raise_if_faulty(self.config.data)
+            self._validated = True
         data_dir = self.config.data if self.config.data.is_dir() else self.config.data.parent
-        transforms_path = data_dir / "transforms.json" if self.config.data.is_dir() else self.config.data
-        if not transforms_path.is_file():
-            raise FileNotFoundError(
-                f"{transforms_path}: no transforms.json. Point --data at a folder in the SS-NeRF dataset format "
-                "(see README, 'Dataset format'), e.g. one made by `ssnerf-make-scene`."
-            )
+        transforms_path = transforms_file(self.config.data)
         outputs = super()._generate_dataparser_outputs(split, **kwargs)
         meta = load_from_json(transforms_path)
         frames = {self._get_fname(Path(frame["file_path"]), data_dir): frame for frame in meta["frames"]}
@@ -51,18 +54,8 @@ class SSNeRFDataParser(Nerfstudio):
             property_files[spec.name] = [
                 data_dir / frame[spec.file_key] if spec.file_key in frame else None for frame in output_frames
             ]
-
         classes = meta.get("semantic_classes")
-        if "semantics" in property_files and not classes:
-            raise LabelFileError(
-                f"{transforms_path}: frames list semantics files but there is no top-level \"semantic_classes\". "
-                "Add the class names (id = index), e.g. \"semantic_classes\": [\"void\", \"bed\", ...]."
-            )
         colors = meta.get("semantic_colors")
-        if colors is not None and (len(colors) != len(classes or []) or any(len(c) != 3 for c in colors)):
-            raise LabelFileError(
-                f"{transforms_path}: \"semantic_colors\" must hold one RGB triple per entry of \"semantic_classes\"."
-            )
 
         label_sizes = [
             (int(frame.get("w", meta.get("w", 0))), int(frame.get("h", meta.get("h", 0)))) for frame in output_frames

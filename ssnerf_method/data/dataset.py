@@ -8,12 +8,14 @@ from __future__ import annotations
 
 from typing import Dict
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
 from nerfstudio.data.datasets.base_dataset import InputDataset
 from nerfstudio.data.utils.data_utils import get_depth_image_from_path
 
+from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.properties import REGISTRY
 
 DEPTH_KEY = "depth_metres"
@@ -30,6 +32,15 @@ class SSNeRFDataset(InputDataset):
         self.num_classes = len(self.metadata.get("semantic_classes", []))
         self.depth_files = self.metadata.get("depth_filenames")
         self.depth_unit = self.metadata.get("depth_unit_scale_factor", 1e-3)
+
+    def get_numpy_image(self, image_idx: int) -> np.ndarray:
+        """nerfstudio's image reading, with one clear error for an image whose header reads but whose data does not
+        (the validator reads headers only)."""
+        try:
+            return super().get_numpy_image(image_idx)
+        except (OSError, ValueError, SyntaxError) as err:
+            path = self._dataparser_outputs.image_filenames[image_idx]
+            raise DatasetInputError(f"{path}: image cannot be decoded ({err}). Re-export the file.") from err
 
     def get_metadata(self, data: Dict) -> Dict[str, torch.Tensor]:
         index = data["image_idx"]

@@ -28,6 +28,9 @@ class DatasetInputError(LabelFileError):
 
 
 def _missing(path: Path, what: str) -> DatasetInputError:
+    if path.is_dir():
+        return DatasetInputError(f"{path}: {what} listed in the dataset is a folder, not a file. Point its key at "
+                                 "the file.")
     return DatasetInputError(f"{path}: {what} listed in the dataset does not exist. Add the file or remove the frame.")
 
 

@@ -2,7 +2,8 @@
 
 Cameras are built with nerfstudio's own `Cameras` (per-frame intrinsics overriding the top-level ones, distortion
 parameters read the way nerfstudio's dataparser reads them), so labels derived from depth use the same rays nerfstudio
-trains on. Every problem raises one `DatasetInputError` naming the file and what to do.
+trains on. A file that cannot be parsed raises one `DatasetInputError` naming it and what to do; `validate.py` checks
+the rest.
 """
 
 from __future__ import annotations
@@ -22,7 +23,9 @@ from nerfstudio.cameras.cameras import CAMERA_MODEL_TO_TYPE, Cameras, CameraType
 from ssnerf_method.data.io import DatasetInputError, image_size
 
 INTRINSIC_KEYS = ("fl_x", "fl_y", "cx", "cy", "w", "h")
+"""Intrinsics every frame needs, per frame or at the top level."""
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+"""nerfstudio's named distortion keys (`distortion_params` lists them in this order)."""
 
 
 @dataclass(frozen=True)
@@ -43,13 +46,13 @@ class Transforms:
 
 
 def load_transforms(data: Path) -> Transforms:
-    """Parse `data/transforms.json` (or `data` itself when it is a .json file) and check its cameras."""
+    """Parse `data/transforms.json` (or `data` itself when it is a .json file); `data/validate.py` checks it."""
     if data.suffix == ".json" and data.is_file():
         folder, path = data.parent, data
     elif data.is_dir():
         folder, path = data, data / "transforms.json"
         if not path.is_file() and (data / "transforms_train.json").is_file():
-            return _check(Transforms(folder, path, blender_as_nerfstudio(folder)))
+            return Transforms(folder, path, blender_as_nerfstudio(folder))
         if not path.is_file():
             raise DatasetInputError(
                 f"{path}: missing. Point at a nerfstudio dataset folder (with a transforms.json, e.g. the output of "
@@ -63,28 +66,7 @@ def load_transforms(data: Path) -> Transforms:
         raise DatasetInputError(f"{path}: not valid JSON ({err}). Restore its backup or regenerate it.") from err
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
         raise DatasetInputError(f"{path}: has no \"frames\" list. It is not a nerfstudio transforms file.")
-    return _check(Transforms(folder, path, meta))
-
-
-def _check(transforms: Transforms) -> Transforms:
-    """Every frame has an image path, a camera model nerfstudio supports and intrinsics."""
-    meta, path = transforms.meta, transforms.path
-    for frame in transforms.frames:
-        if "file_path" not in frame:
-            raise DatasetInputError(f"{path}: a frame has no \"file_path\". Give every frame its image path.")
-        model = frame.get("camera_model", meta.get("camera_model", "OPENCV"))
-        if model not in CAMERA_MODEL_TO_TYPE:
-            raise DatasetInputError(
-                f"{path}: camera_model {model!r} (frame {frame['file_path']}) is not one nerfstudio supports. "
-                f"Use one of {sorted(CAMERA_MODEL_TO_TYPE)} (re-run ns-process-data or fix the key)."
-            )
-        missing = [key for key in INTRINSIC_KEYS if key not in frame and key not in meta]
-        if missing:
-            raise DatasetInputError(
-                f"{path}: frame {frame['file_path']} has no {', '.join(missing)} (neither per frame nor at the top "
-                "level). nerfstudio needs the intrinsics; add them."
-            )
-    return transforms
+    return Transforms(folder, path, meta)
 
 
 BLENDER_SPLITS = ("train", "val", "test")

@@ -24,6 +24,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
+from ssnerf_method.errors import UserError
 from ssnerf_method.evaluation.metrics import Statistics, add_statistics
 
 
@@ -34,10 +35,27 @@ class SSNeRFPipelineConfig(VanillaPipelineConfig):
     _target: Type = field(default_factory=lambda: SSNeRFPipeline)
 
 
+class TrainingDiverged(UserError):
+    """A loss or an evaluation metric is NaN or infinite: the model is broken and nothing it gives can be used."""
+
+
 class SSNeRFPipeline(VanillaPipeline):
-    """Evaluates a split by summing per-view metric statistics (see the module docstring)."""
+    """Evaluates a split by summing per-view metric statistics (see the module docstring), and stops at the first
+    non-finite loss (nerfstudio would go on and save NaN checkpoints)."""
 
     config: SSNeRFPipelineConfig
+
+    def get_train_loss_dict(self, step: int):
+        """nerfstudio's training step, then one check (a single device sync) that every loss is finite."""
+        model_outputs, loss_dict, metrics_dict = super().get_train_loss_dict(step)
+        if loss_dict and not bool(torch.stack([loss.detach().sum() for loss in loss_dict.values()]).isfinite().all()):
+            bad = [name for name, loss in loss_dict.items() if not bool(loss.detach().isfinite().all())]
+            raise TrainingDiverged(
+                f"step {step}: loss {', '.join(bad)} is not finite (NaN or Inf); training stopped before this step's "
+                "update, so the saved checkpoints are the last good ones. Check the data (`ssnerf-check DATA`) or "
+                "lower the learning rate."
+            )
+        return model_outputs, loss_dict, metrics_dict
 
     @torch.no_grad()
     def get_eval_image_metrics_and_images(self, step: int):
@@ -90,6 +108,11 @@ class SSNeRFPipeline(VanillaPipeline):
         self.train()
 
         results = model.metrics_from_statistics(totals)
+        if "psnr" in results and not np.isfinite(results["psnr"]):
+            raise TrainingDiverged(
+                f"evaluation: the model renders NaN or infinite colours (PSNR {results['psnr']}); its "
+                "checkpoint is broken, so no metrics were written. Retrain it (training stops at a non-finite loss)."
+            )
         for key in ("num_rays_per_sec", "fps"):
             results[key] = float(np.mean([metrics[key] for metrics in per_view]))
         if "semantics_miou" in results:

@@ -17,6 +17,7 @@ written as a new file.
 
 from __future__ import annotations
 
+import os
 import threading
 from collections import Counter
 from copy import deepcopy
@@ -31,8 +32,9 @@ import tyro
 
 from nerfstudio.cameras.cameras import Cameras
 
-from ssnerf_method.data.io import DatasetInputError, Staging, backup_once, image_size, read_image, write_json_atomic
+from ssnerf_method.data.io import DatasetInputError, Staging, backup_once, read_image, write_json_atomic
 from ssnerf_method.data.transforms import Transforms, camera_key, camera_rays, frame_camera, is_perspective
+from ssnerf_method.data.validate import validate_dataset, validate_transforms
 from ssnerf_method.labels.edges import canny_edges
 from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
 from ssnerf_method.labels.normals import normals_from_points
@@ -54,8 +56,10 @@ class LabelDatasetConfig:
     data: tyro.conf.Positional[Path]
     """Dataset folder holding transforms.json (or the path of a transforms .json file)."""
     output: Optional[str] = None
-    """Write the labelled transforms to this new file name in the dataset folder instead of updating transforms.json
-    in place (in place, the original is first copied to transforms.json.orig, once)."""
+    """Write the labelled transforms to this new file instead of updating transforms.json in place (in place, the
+    original is first copied to transforms.json.orig, once). A bare name goes in the dataset folder; a path with a
+    folder (e.g. a writable copy's `../labelled/transforms.json`) gets the labels beside it and file paths that point
+    back at the dataset."""
     edges: bool = True
     """Canny edges of the RGB image."""
     keypoints: bool = True
@@ -275,19 +279,14 @@ class LabelReport:
         return self.outcomes.get(name, Counter())[LABELLED]
 
 
-def _check_frames(transforms: Transforms) -> None:
-    """Before any work: every image exists, is readable and matches its camera's size; label paths are unique."""
+def _check_frames(transforms: Transforms, config: LabelDatasetConfig) -> None:
+    """Before any work: the dataset passes validation (the labels it keeps included), and label paths are unique."""
+    replaced = enabled_properties(config) if config.relabel else []
+    validate_transforms(transforms.folder, transforms.path, transforms.meta, skip_labels=replaced).raise_if_faulty(
+        transforms.folder
+    )
     seen: Dict[PurePosixPath, str] = {}
     for frame in transforms.frames:
-        path = transforms.file(frame["file_path"])
-        width, height = image_size(path, "image")
-        expected = (int(frame.get("w", transforms.meta.get("w"))), int(frame.get("h", transforms.meta.get("h"))))
-        if (width, height) != expected:
-            raise DatasetInputError(
-                f"{path}: image is {width}x{height} but {transforms.path.name} gives its camera as "
-                f"{expected[0]}x{expected[1]}. Images of mixed sizes need per-frame \"w\"/\"h\" (and intrinsics); "
-                "fix the frame or resize the image."
-            )
         target = label_path(frame, "_")
         if target in seen:
             raise DatasetInputError(
@@ -356,43 +355,75 @@ def label_frame(
     return keys, outcomes, context.semantic_ids
 
 
+def output_path(config: LabelDatasetConfig, transforms: Transforms) -> Path:
+    """The transforms file `ssnerf-label` writes: the dataset's own, a new name beside it, or a path elsewhere."""
+    if config.output is None:
+        return transforms.path
+    given = Path(config.output)
+    return given if given.is_absolute() or given.parent != Path(".") else transforms.folder / given
+
+
+def rebase_paths(meta: Dict, source: Path, target: Path) -> Dict:
+    """`meta` with every file path of its frames and splits made relative to `target` instead of `source`."""
+    if source.resolve() == target.resolve():
+        return meta
+
+    def moved(value: str) -> str:
+        return os.path.relpath(source / value, target)
+
+    keys = ["file_path", "depth_file_path", "mask_path", *[spec.file_key for spec in REGISTRY.values() if spec.file_key]]
+    frames = [{key: moved(value) if key in keys and isinstance(value, str) else value for key, value in frame.items()}
+              for frame in meta["frames"]]
+    splits = {key: [moved(value) for value in meta[key]] for key in SPLIT_KEYS if key in meta}
+    return {**meta, **splits, "frames": frames}
+
+
+SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
+
+
 def label_dataset(
     config: LabelDatasetConfig, transforms: Transforms, on_frame: Optional[Callable[[], None]] = None
 ) -> LabelReport:
     """Label every frame of `transforms` (see the module docstring); all or nothing."""
-    if config.output is not None:
-        output = transforms.folder / config.output
-        if output.exists():
-            raise DatasetInputError(f"{output}: exists. Pick a new --output name or remove that file.")
-    else:
-        output = transforms.path
-    _check_frames(transforms)
+    output = output_path(config, transforms)
+    if config.output is not None and output.exists():
+        raise DatasetInputError(f"{output}: exists. Pick a new --output name or remove that file.")
+    _check_frames(transforms, config)
     report = LabelReport(transforms_path=output)
     rays = RayCache()
-    with Staging(transforms.folder) as staging:
-        with ThreadPoolExecutor(max_workers=max(config.workers, 1)) as pool:
+    meta = rebase_paths(transforms.meta, transforms.folder, output.parent)
+    try:
+        with Staging(output.parent) as staging:
+            with ThreadPoolExecutor(max_workers=max(config.workers, 1)) as pool:
 
-            def run(frame: Dict):
-                result = label_frame(transforms, frame, config, staging, rays)
-                if on_frame is not None:
-                    on_frame()
-                return result
+                def run(frame: Dict):
+                    result = label_frame(transforms, frame, config, staging, rays)
+                    if on_frame is not None:
+                        on_frame()
+                    return result
 
-            results = list(pool.map(run, transforms.frames))
+                results = list(pool.map(run, transforms.frames))
 
-        meta = dict(transforms.meta)
-        meta["frames"] = [{**frame, **keys} for frame, (keys, _, _) in zip(transforms.frames, results)]
-        for _, outcomes, _ in results:
-            for name, outcome in outcomes.items():
-                report.add(name, outcome)
-        if report.labelled("semantics"):
-            meta["semantic_classes"] = _class_names(config, meta, max(max(ids, default=0) for _, _, ids in results))
-        meta["ssnerf_label"] = _provenance(config)
+            meta["frames"] = [{**frame, **keys} for frame, (keys, _, _) in zip(meta["frames"], results)]
+            for _, outcomes, _ in results:
+                for name, outcome in outcomes.items():
+                    report.add(name, outcome)
+            if report.labelled("semantics"):
+                meta["semantic_classes"] = _class_names(config, meta, max(max(ids, default=0) for _, _, ids in results))
+            made = [name for name in LABELLERS if report.labelled(name)]
+            if made:
+                meta["ssnerf_label"] = {**meta.get("ssnerf_label", {}), **_provenance(config, made)}
 
-        staging.commit()
-        if config.output is None and transforms.path.exists():  # (a Blender folder has no transforms.json yet)
-            report.backup_path = backup_once(transforms.path)
-        write_json_atomic(output, meta)
+            staging.commit()
+            if config.output is None and transforms.path.exists():  # (a Blender folder has no transforms.json yet)
+                report.backup_path = backup_once(transforms.path)
+            write_json_atomic(output, meta)
+    except PermissionError as err:
+        raise DatasetInputError(
+            f"{err.filename or output.parent}: cannot write there ({err.strerror}). Nothing was changed; label into a "
+            "folder you can write: --output /writable/folder/transforms.json (its file paths point back here)."
+        ) from err
+    validate_dataset(output).raise_if_faulty(output)  # what ns-train will read (a fault here is a bug of ours)
     return report
 
 
@@ -406,13 +437,15 @@ def _class_names(config: LabelDatasetConfig, meta: Dict, max_id: int) -> List[st
     return list(names)
 
 
-def _provenance(config: LabelDatasetConfig) -> Dict:
-    """What made the labels, stored in the transforms file so a dataset documents itself."""
-    return {
-        "tool": "ssnerf-label",
-        "edges": f"Canny, thresholds {config.canny_low:g} / {config.canny_high:g} on the 8-bit grey image",
-        "keypoints": describe_keypoint_label(config.keypoint_label, config.keypoint_sigma, config.keypoint_detector),
-        "normals": "from depth: camera frame, OpenGL axes (x right, y up, z towards the viewer), (n + 1) / 2 * 255; "
-        "alpha 0 where depth is invalid",
-        "shading": "Lambertian, point light at the camera centre: clip(dot(n, -view_dir), 0, 1)",
+def _provenance(config: LabelDatasetConfig, made: List[str]) -> Dict:
+    """What made the labels in `made`, stored in the transforms file so a dataset documents itself."""
+    methods = {
+        "edges": lambda: f"Canny, thresholds {config.canny_low:g} / {config.canny_high:g} on the 8-bit grey image",
+        "keypoints": lambda: describe_keypoint_label(config.keypoint_label, config.keypoint_sigma,
+                                                     config.keypoint_detector),
+        "normals": lambda: "from depth: camera frame, OpenGL axes (x right, y up, z towards the viewer), "
+        "(n + 1) / 2 * 255; alpha 0 where depth is invalid",
+        "shading": lambda: "Lambertian, point light at the camera centre: clip(dot(n, -view_dir), 0, 1)",
+        "semantics": lambda: f"copied from {config.semantics_dir}",
     }
+    return {"tool": "ssnerf-label", **{name: methods[name]() for name in made}}

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import sys
 import time
 import warnings
 
@@ -13,7 +12,7 @@ from nerfstudio.utils.rich_utils import CONSOLE, get_progress
 
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.labels.label_dataset import KEPT, LABELLED, LabelDatasetConfig, LabelReport, label_dataset
-from ssnerf_method.properties import LabelFileError
+from ssnerf_method.errors import UserError, exit_with
 
 
 def report_table(report: LabelReport, num_frames: int) -> Table:
@@ -53,8 +52,8 @@ def entrypoint() -> None:
     warnings.filterwarnings("ignore", category=FutureWarning, module="torch.jit")
     try:
         main(config)
-    except LabelFileError as err:
-        sys.exit(f"ssnerf-label: {err}")
+    except UserError as err:
+        exit_with(err, "ssnerf-label")
 
 
 if __name__ == "__main__":
