@@ -28,10 +28,15 @@ def _program() -> str:
 
 
 def report(error: UserError, program: Optional[str] = None) -> None:
-    """Print `error` to stderr, each line prefixed with the program's name (as `sys.exit(message)` would)."""
+    """Print `error` to stderr, each line prefixed with the program's name (as `sys.exit(message)` would), in red on
+    a terminal as nerfstudio shows a bad config, never wrapped."""
+    from rich.console import Console
+    from rich.markup import escape
+
+    console = Console(stderr=True, soft_wrap=True, highlight=False)
     name = program or _program()
     for line in str(error).splitlines() or [type(error).__name__]:
-        print(f"{name}: {line}", file=sys.stderr)
+        console.print(f"[bold red]{escape(name)}:[/bold red] {escape(line)}")
 
 
 def exit_with(error: UserError, program: Optional[str] = None) -> NoReturn:

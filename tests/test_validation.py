@@ -265,3 +265,10 @@ def test_ns_eval_on_an_empty_checkpoint_folder(trained_scene, tmp_path: Path) ->
     copied.write_text(yaml.dump(config), "utf8")
     with pytest.raises(UserError, match="nerfstudio_models: holds no checkpoint"):
         ComputePSNR(load_config=copied, output_path=tmp_path / "eval.json").main()
+
+
+def test_readme_lists_exactly_these_faults() -> None:
+    readme = (Path(__file__).parents[1] / "README.md").read_text()
+    block = readme.split("<!-- bad-input list: tests/test_validation.py FAULTS -->")[1].split("<!-- end of")[0]
+    listed = [line[2:].split(":")[0] for line in block.strip().splitlines()]
+    assert listed == list(FAULTS)

@@ -133,7 +133,7 @@ def validate_transforms(
             where += f" ({frame['file_path']})"
         frame_faults, size = _frame_faults(where, frame, meta)
         faults.extend(frame_faults)
-        jobs.extend(_file_jobs(folder, frame, size, num_classes, contents, skip_labels))
+        jobs.extend(_file_jobs(where, folder, frame, size, num_classes, contents, skip_labels))
         for spec in REGISTRY.values():
             if spec.file_key is not None and spec.file_key in frame:
                 validation.labelled[spec.name] = validation.labelled.get(spec.name, 0) + 1
@@ -275,6 +275,7 @@ def _pose_faults(where: str, matrix: object) -> List[str]:
 
 
 def _file_jobs(
+    where: str,
     folder: Path,
     frame: Dict,
     size: Optional[Tuple[int, int]],
@@ -290,7 +291,7 @@ def _file_jobs(
         if value is None:
             return None
         if not isinstance(value, str):
-            jobs.append(lambda: f"{folder}: a frame's \"{key}\" is {value!r}, not a path. Give the file's path.")
+            jobs.append(lambda: f"{where}: \"{key}\" is {value!r}, not a path. Give the file's path.")
             return None
         return folder / value
 
