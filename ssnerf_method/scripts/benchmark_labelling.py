@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import tempfile
 import time
-import warnings
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict
@@ -60,7 +59,6 @@ def timed_run(data: Path, name: str, workers: int, **switches: bool) -> float:
 
 
 def main(config: BenchmarkLabellingConfig) -> Dict[str, float]:
-    warnings.filterwarnings("ignore", module="nerfstudio.cameras")
     with tempfile.TemporaryDirectory() as folder:
         data = unlabelled_scene(Path(folder) / "scene", config)
         timed_run(data, "warmup", 1, **{kind: kind == "edges" for kind in LABELLERS})  # imports, lazy init

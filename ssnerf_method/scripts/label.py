@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import time
-import warnings
 
 import tyro
 from rich.table import Table
@@ -48,8 +47,6 @@ def main(config: LabelDatasetConfig) -> LabelReport:
 def entrypoint() -> None:
     """Console script: one line of error (naming the file and the fix) instead of a traceback for bad input."""
     config = tyro.cli(LabelDatasetConfig)
-    warnings.filterwarnings("ignore", module="nerfstudio.cameras")  # torch indexing deprecation noise per camera
-    warnings.filterwarnings("ignore", category=FutureWarning, module="torch.jit")
     try:
         main(config)
     except UserError as err:
