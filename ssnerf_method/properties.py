@@ -158,6 +158,18 @@ class PropertyKind(ABC):
         Most properties are not vectors in the camera frame and stay as they are."""
         return label
 
+    def export_outputs(self, name: str, prediction: Tensor, context: RenderContext) -> Dict[str, Tensor]:
+        """Extra per-ray outputs in the conventions of nerfstudio's exporters (`ns-export`); none by default."""
+        return {}
+
+    def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        """Per-ray values this property gives each point of a labelled point cloud, by PLY property name: its
+        rendered prediction, one float per channel (`name`, or `name_0`, `name_1`, ...)."""
+        prediction = outputs[name + self.prediction_suffix].float()
+        if prediction.shape[-1] == 1:
+            return {name: prediction[..., 0]}
+        return {f"{name}_{channel}": prediction[..., channel] for channel in range(prediction.shape[-1])}
+
 
 class ColorKind(PropertyKind):
     """RGB radiance: sigmoid per sample, composited over the background by nerfstudio's `RGBRenderer`."""
@@ -174,6 +186,11 @@ class ColorKind(PropertyKind):
 
     def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
         return prediction.clamp(0.0, 1.0)
+
+    def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        """8-bit `red`, `green`, `blue`, as point-cloud viewers expect."""
+        colours = (outputs[name].clamp(0.0, 1.0) * 255.0).round().to(torch.uint8)
+        return dict(zip(("red", "green", "blue"), colours.unbind(-1)))
 
 
 class ClassKind(PropertyKind):
@@ -213,6 +230,10 @@ class ClassKind(PropertyKind):
         """The most likely class id per pixel, (H, W) uint8."""
         return prediction.argmax(dim=-1).cpu().numpy().astype(np.uint8)
 
+    def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        """The most likely class id (uint8; the names go in the PLY header)."""
+        return {name: outputs[name + self.prediction_suffix].argmax(dim=-1).to(torch.uint8)}
+
 
 class NormalKind(PropertyKind):
     """Surface normals, compared and shown in the camera frame as the (n+1)/2 encoding.
@@ -234,10 +255,23 @@ class NormalKind(PropertyKind):
     def render(self, values: Tensor, weights: Tensor, context: RenderContext) -> Tensor:
         if self.mode == "pose":
             return SemanticRenderer()(values, weights)
-        assert context.world_to_camera is not None, "world-frame normals need each ray's camera rotation"
         normals = NormalsRenderer()(values, weights, normalize=True)
-        normals = torch.einsum("...ij,...j->...i", context.world_to_camera, normals)
+        if context.world_to_camera is not None:  # (rays without a camera, e.g. ns-export's probe, stay in world axes)
+            normals = torch.einsum("...ij,...j->...i", context.world_to_camera, normals)
         return (F.normalize(normals, dim=-1) + 1.0) / 2.0
+
+    def export_outputs(self, name: str, prediction: Tensor, context: RenderContext) -> Dict[str, Tensor]:
+        """`<name>_world`: the world-frame unit normal as (n+1)/2 in [0, 1], what `ns-export --normal-output-name`
+        takes (the camera-frame prediction rotated back by each ray's camera-to-world rotation)."""
+        normals = prediction * 2.0 - 1.0
+        if context.world_to_camera is not None:
+            normals = torch.einsum("...ji,...j->...i", context.world_to_camera, normals)
+        return {f"{name}_world": ((F.normalize(normals, dim=-1) + 1.0) / 2.0).clamp(0.0, 1.0)}
+
+    def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
+        """The world-frame unit normal as `nx`, `ny`, `nz` (the PLY convention)."""
+        normals = outputs[f"{name}_world"].float() * 2.0 - 1.0
+        return dict(zip(("nx", "ny", "nz"), normals.unbind(-1)))
 
     def reframe(self, label: Tensor, rotation: Tensor) -> Tensor:
         normals = torch.einsum("ij,...j->...i", rotation.to(label), label * 2.0 - 1.0)

@@ -96,7 +96,7 @@ def edit_transforms() -> Callable[[Path, Callable[[Dict], None]], None]:
 @pytest.fixture(scope="session")
 def trained_scene(tmp_path_factory) -> Tuple[Path, Path]:
     """A generated 40x30 scene (10 frames, a 12-frame fly-through) and the config.yml of an `ssnerf-lite` with
-    every property trained on it for 40 steps at the benchmark's --quick sizes (one thread)."""
+    every property trained on it for 150 steps at the benchmark's --quick sizes (one thread)."""
     import torch
 
     from nerfstudio.scripts.train import main as train_main
@@ -116,7 +116,7 @@ def trained_scene(tmp_path_factory) -> Tuple[Path, Path]:
     config.machine.device_type = "cpu"
     config.vis = "tensorboard"
     config.output_dir, config.experiment_name, config.timestamp = root / "outputs", "tiny", "run"
-    config.max_num_iterations = config.steps_per_save = 40
+    config.max_num_iterations = config.steps_per_save = 150
     config.steps_per_eval_batch = config.steps_per_eval_image = config.steps_per_eval_all_images = 10**6
     config.logging.local_writer.enable = False
     train_main(config)

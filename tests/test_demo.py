@@ -5,8 +5,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
+from PIL import Image
 
 from ssnerf_method.scripts.demo import DemoConfig, run
 
@@ -40,5 +42,12 @@ def test_demo_writes_metrics_and_renders(tmp_path: Path) -> None:
     assert len(views) == 2  # frames 2 and 7 of 10 are the test views
     for view in views:
         assert {path.stem for path in view.glob("*.png")} == set(PROPERTIES)
+    grid = np.asarray(Image.open(out / "summary.png").convert("RGB")).astype(int)
+    first = np.asarray(Image.open(views[0] / "semantics.png").convert("RGB")).astype(int)
+    assert grid.shape[1] > grid.shape[0]  # one column per property, two rows (ground truth, SS-NeRF)
+    # the summary shows view 0's semantics ground truth: its class colours appear in the grid
+    truth_colours = {tuple(colour) for colour in first[:, : first.shape[1] // 2].reshape(-1, 3)}
+    grid_colours = {tuple(colour) for colour in grid.reshape(-1, 3)}
+    assert len(truth_colours & grid_colours) >= min(3, len(truth_colours))
     with pytest.raises(SystemExit, match="--overwrite"):
         run(DemoConfig(output_dir=out, method="ssnerf-lite", max_num_iterations=10, width=48, height=36, num_frames=10))

@@ -245,9 +245,24 @@ def test_world_normals_with_conftest_look_at() -> None:
     assert torch.allclose(rendered, torch.tensor([[0.5, 0.5, 1.0], [0.5, 1.0, 0.5]]), atol=1e-6)
 
 
-def test_world_normals_need_camera_rotation() -> None:
-    with pytest.raises(AssertionError):
-        NormalKind("world").render(torch.ones(1, 2, 3), torch.ones(1, 2, 1) / 2, RenderContext())
+def test_rays_without_a_camera_keep_world_normals() -> None:
+    """nerfstudio's exporters probe the model with rays that carry no camera: normals stay in world axes."""
+    world = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+    rendered = NormalKind("world").render(world[:, None, :] * 3.0, torch.ones(2, 1, 1), RenderContext())
+    assert torch.allclose(rendered, (world + 1.0) / 2.0)
+
+
+@pytest.mark.parametrize("mode", ["world", "pose"])
+def test_export_normals_are_world_frame(mode: str) -> None:
+    """`normals_world` undoes the camera rotation of the camera-frame prediction, in both normal modes."""
+    world = torch.tensor([[1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    context = RenderContext(world_to_camera=LOOK_MINUS_X.T.expand(3, 3, 3))
+    camera_frame = render_world_normals(world, LOOK_MINUS_X)
+    exported = NormalKind(mode).export_outputs("normals", camera_frame, context)
+    assert set(exported) == {"normals_world"}
+    assert torch.allclose(exported["normals_world"], (world + 1.0) / 2.0, atol=1e-6)
+    values = NormalKind(mode).point_values("normals", exported)
+    assert torch.allclose(torch.stack([values[axis] for axis in ("nx", "ny", "nz")], -1), world, atol=1e-6)
 
 
 def test_pose_normals_pass_encoding_through() -> None:

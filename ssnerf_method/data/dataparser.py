@@ -25,9 +25,10 @@ class SSNeRFDataParserConfig(NerfstudioDataParserConfig):
     """nerfstudio's dataparser plus the SS-NeRF property files."""
 
     _target: Type = field(default_factory=lambda: SSNeRFDataParser)
-    check_contents: bool = True
-    """Validation reads the label pixels (class ids in range, unit normals, depth not all zero) besides every file's
-    header; off, only headers are read before training and a bad label stops the run when it is loaded."""
+    check_contents: bool = False
+    """Also read every label's pixels before anything is built (class ids in range, unit normals, depth not all
+    zero), as `ssnerf-check` does. Off (default), validation reads headers only and the pixels are checked once, as
+    the dataset decodes them for training (before step 0): the full read doubles loading a large dataset."""
 
 
 class SSNeRFDataParser(Nerfstudio):

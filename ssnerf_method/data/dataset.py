@@ -16,6 +16,7 @@ from nerfstudio.data.datasets.base_dataset import InputDataset
 from nerfstudio.data.utils.data_utils import get_depth_image_from_path
 
 from ssnerf_method.data.io import DatasetInputError
+from ssnerf_method.data.validate import depth_fault
 from ssnerf_method.properties import REGISTRY
 
 DEPTH_KEY = "depth_metres"
@@ -59,5 +60,8 @@ class SSNeRFDataset(InputDataset):
                 label = label.permute(1, 2, 0)
             labels[name] = label
         if self.depth_files is not None:
-            labels[DEPTH_KEY] = get_depth_image_from_path(self.depth_files[index], height, width, self.depth_unit)
+            depth = get_depth_image_from_path(self.depth_files[index], height, width, self.depth_unit)
+            if (fault := depth_fault(self.depth_files[index], depth.numpy())) is not None:
+                raise DatasetInputError(fault)
+            labels[DEPTH_KEY] = depth
         return labels

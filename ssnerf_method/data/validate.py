@@ -7,7 +7,9 @@ the right mode. Images are checked from their headers; the pixels are read only 
 otherwise (depth that is zero everywhere, and the labels, which each kind of the registry reads and checks as
 training will: class ids in range, normals of unit length). The files are checked on a few threads.
 
-The dataparser (so `ns-train`, `ns-eval`, `ns-render`), `ssnerf-label` and `ssnerf-check` run it.
+`ssnerf-check` and `ssnerf-label` run it in full. The dataparser (so `ns-train`, `ns-eval`, `ns-render`) reads headers
+only by default: reading every label's pixels costs as much as loading them for training (README, "Checking a
+dataset"), so there they are checked once, as the dataset decodes them, before the first training step.
 """
 
 from __future__ import annotations
@@ -373,11 +375,16 @@ def _check_depth(path: Path, size: Optional[Tuple[int, int]], contents: bool) ->
         values = np.load(path) if path.suffix == ".npy" else cv2.imread(str(path), cv2.IMREAD_ANYDEPTH)
         if values is None:
             return f"{path}: depth map cannot be decoded. Re-export the file."
-        values = np.asarray(values, dtype=np.float64)
-        if not (np.isfinite(values) & (values > 0)).any():
-            return (f"{path}: depth is zero (or invalid) everywhere. Point depth_file_path at this frame's depth, or "
-                    "remove the key from every frame.")
+        return depth_fault(path, np.asarray(values, dtype=np.float64))
     return None
+
+
+def depth_fault(path: Path, depth: np.ndarray) -> Optional[str]:
+    """The fault of a decoded depth map that has no valid value at all (the dataset checks it as it loads depth)."""
+    if (np.isfinite(depth) & (depth > 0)).any():
+        return None
+    return (f"{path}: depth is zero (or invalid) everywhere. Point depth_file_path at this frame's depth, or remove the "
+            "key from every frame.")
 
 
 def _check_label(

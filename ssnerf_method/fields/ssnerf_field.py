@@ -148,10 +148,11 @@ class SSNeRFField(Field):
                 directions = get_normalized_directions(directions)  # tcnn's SH takes [0, 1]; the torch path unit vectors
             inputs.append(self.direction_encoding(directions))
         elif self.pose_encoding is not None:
-            if ray_samples.metadata is None or POSE_METADATA_KEY not in ray_samples.metadata:
-                raise RuntimeError(f"pose-conditioned normals need ray metadata '{POSE_METADATA_KEY}'")
-            pose = self.pose_encoding(ray_samples.metadata[POSE_METADATA_KEY])
-            inputs.append(pose.expand(*feature.shape[:-1], -1))
+            if ray_samples.metadata is not None and POSE_METADATA_KEY in ray_samples.metadata:
+                pose = ray_samples.metadata[POSE_METADATA_KEY]
+            else:  # rays without a camera (nerfstudio's exporter probes): the identity pose
+                pose = torch.eye(4, device=feature.device)[:3].reshape(12).expand(*feature.shape[:-1], 12)
+            inputs.append(self.pose_encoding(pose).expand(*feature.shape[:-1], -1))
         return torch.cat(inputs, dim=-1)
 
     def get_outputs(

@@ -254,6 +254,7 @@ class SSNeRFModel(Model):
         for spec in self.specs:
             if spec.prediction_key != spec.name:
                 outputs[spec.name] = spec.display(outputs[spec.prediction_key], self.palette)
+            outputs.update(spec.kind.export_outputs(spec.name, outputs[spec.prediction_key], context))
         shown = None if self.semantic_classes is None else self.semantic_classes.highlighted_class
         if self.class_spec is not None and shown is not None:
             outputs[self.class_spec.name] = highlight_class(
@@ -267,6 +268,13 @@ class SSNeRFModel(Model):
             outputs["weights_list"] = result.weights_list
             outputs["ray_samples_list"] = result.ray_samples_list
         return outputs
+
+    def get_rgba_image(self, outputs: Dict[str, Tensor], output_name: str = "rgb") -> Tensor:
+        """Any display output as RGBA for nerfstudio's exporters (`ns-export --rgb-output-name semantics` gives class
+        colours, a scalar map its grey), with the accumulation as alpha so that rays through empty space drop out."""
+        colours = outputs[output_name]
+        colours = colours.expand(*colours.shape[:-1], 3) if colours.shape[-1] == 1 else colours[..., :3]
+        return torch.cat([colours, outputs["accumulation"]], dim=-1)
 
     @property
     def level_prefixes(self) -> List[str]:

@@ -5,10 +5,10 @@
 Writes a synthetic dataset of that size (once; kept in `--data-dir`): JPEG images, 16-bit depth and every property
 label as PNGs, smooth shapes so that the files compress as real ones do. Then, one after the other on an idle machine:
 
-- validation alone, headers only and with the pixel checks (the dataparser's default);
+- validation alone, headers only (the dataparser's default) and with the pixel checks (`ssnerf-check`'s);
 - nerfstudio's dataparser for the train and test splits without validation, then decoding every training item through
   `SSNeRFDataset` (what the datamanager's cache does before step 0): "loading without validation";
-- the same dataparser with validation, to check that it adds the validation's time and nothing more.
+- the same with the dataparser's validation (headers), which checks the label pixels as the items are decoded.
 
 One untimed load first warms the imports and the file cache; then each measurement is the best of `--repeats` runs,
 the two loads interleaved. Times are seconds of wall clock; the overhead is validation's share of loading.
@@ -141,10 +141,10 @@ def main(config: BenchmarkValidationConfig) -> None:
     table = Table(title=f"Validation vs loading, {config.num_frames} frames at {config.width}x{config.height}")
     for column in ("what", "seconds", "share of loading"):
         table.add_column(column)
-    table.add_row("validation, headers only", f"{headers:.2f}", f"{headers / without:.1%}")
-    table.add_row("validation, with pixel checks (default)", f"{contents:.2f}", f"{contents / without:.1%}")
+    table.add_row("validation, headers only (the dataparser's)", f"{headers:.2f}", f"{headers / without:.1%}")
+    table.add_row("validation with pixel checks (ssnerf-check's)", f"{contents:.2f}", f"{contents / without:.1%}")
     table.add_row("loading without validation (parser + every item decoded)", f"{without:.2f}", "100%")
-    table.add_row("loading with validation", f"{with_validation:.2f}", f"{with_validation / without:.1%}")
+    table.add_row("loading with the dataparser's validation", f"{with_validation:.2f}", f"{with_validation / without:.1%}")
     CONSOLE.print(table)
 
 

@@ -2,7 +2,8 @@
 
 Runs the same steps a user would type (`ssnerf-make-scene`, `ns-train`, `ns-eval`), in one process: the trained
 checkpoint is reloaded through nerfstudio's `eval_setup`, exactly as `ns-eval` loads it. Results: a metrics table on
-the console, `metrics.json`, and per test view one PNG per property (ground truth | rendering) under `renders/`.
+the console, `metrics.json`, `summary.png` (every property of one test view, ground truth above rendering; the README's
+first figure) and per test view one PNG per property (ground truth | rendering) under `renders/`.
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ from nerfstudio.scripts.train import main as train_main
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from ssnerf_method.evaluation.figures import display_image
+from ssnerf_method.evaluation.figures import display_image, property_grid
 from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
@@ -55,6 +56,8 @@ class DemoConfig:
     """Scene frames (every 5th is a test view)."""
     seed: int = 0
     """Scene seed."""
+    summary_view: int = 0
+    """Test view of `summary.png`, the grid of every property (ground truth above SS-NeRF)."""
     eval_step_zero: bool = False
     """Also score the untrained model (step 0), to show what training adds."""
     overwrite: bool = False
@@ -81,8 +84,11 @@ def nearest_view_baseline(pipeline: Pipeline) -> Dict[str, float]:
     return model.metrics_from_statistics(totals)
 
 
-def evaluate(pipeline: Pipeline, renders_dir: Optional[Path]) -> Dict[str, float]:
-    """The test split's metrics as `ns-eval` computes them; optionally ground truth | rendering PNGs per view."""
+def evaluate(
+    pipeline: Pipeline, renders_dir: Optional[Path], summary: Optional[Path] = None, summary_view: int = 0
+) -> Dict[str, float]:
+    """The test split's metrics as `ns-eval` computes them; optionally ground truth | rendering PNGs per view, and
+    `summary`: one grid of every property (ground truth above SS-NeRF) on test view `summary_view`."""
     model: SSNeRFModel = pipeline.model  # type: ignore[assignment]
     scores = pipeline.get_average_eval_image_metrics()
     scores = {name: value for name, value in scores.items() if name not in ("num_rays_per_sec", "fps")}
@@ -90,16 +96,21 @@ def evaluate(pipeline: Pipeline, renders_dir: Optional[Path]) -> Dict[str, float
         return scores
     model.eval()
     dataloader = pipeline.datamanager.fixed_indices_eval_dataloader  # type: ignore[attr-defined]
+    grid: Dict[str, Dict[str, Optional[np.ndarray]]] = {"ground truth": {}, "SS-NeRF": {}}
     for view, (camera, batch) in enumerate(dataloader):
         outputs = model.render_camera(camera)
         view_dir = renders_dir / f"test_view_{view:02d}"
         view_dir.mkdir(parents=True, exist_ok=True)
         for spec in model.specs:
             label = spec.label(batch, model.num_classes).to(model.device)
-            truth = spec.display(spec.kind.label_as_prediction(label, model.num_classes), model.palette)
-            shown = spec.display(outputs[spec.prediction_key], model.palette)
-            pair = np.concatenate([display_image(truth), display_image(shown)], axis=1)
-            Image.fromarray(pair).save(view_dir / f"{spec.name}.png")
+            truth = display_image(spec.display(spec.kind.label_as_prediction(label, model.num_classes), model.palette))
+            shown = display_image(spec.display(outputs[spec.prediction_key], model.palette))
+            Image.fromarray(np.concatenate([truth, shown], axis=1)).save(view_dir / f"{spec.name}.png")
+            if view == summary_view:
+                grid["ground truth"][spec.name], grid["SS-NeRF"][spec.name] = truth, shown
+    if summary is not None:
+        property_grid(summary, model.specs, grid, f"Test view {summary_view} of the default scene: ground truth "
+                      "(top) and SS-NeRF's renders (bottom), every property from one field")
     return scores
 
 
@@ -146,7 +157,8 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
     config_path = trainer_config.get_base_dir() / "config.yml"
     CONSOLE.rule("Evaluating on the test views (checkpoint loaded as ns-eval does)")
     _, pipeline, _, step = eval_setup(config_path, test_mode="test")
-    results: Dict[str, Dict[str, float]] = {f"{method} (step {step})": evaluate(pipeline, config.output_dir / "renders")}
+    renders = evaluate(pipeline, config.output_dir / "renders", config.output_dir / "summary.png", config.summary_view)
+    results: Dict[str, Dict[str, float]] = {f"{method} (step {step})": renders}
     results["nearest training view"] = nearest_view_baseline(pipeline)
     if config.eval_step_zero:
         untrained = trainer_config.pipeline.setup(device=pipeline.device, test_mode="test")
@@ -165,7 +177,8 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
     names = " ".join(spec.name for spec in pipeline.model.specs)  # type: ignore[attr-defined]
     CONSOLE.print(
         f"Trained in {train_seconds / 60:.1f} min; demo took {(time.time() - start) / 60:.1f} min.\n"
-        f"Metrics: {config.output_dir / 'metrics.json'}\nRenders (ground truth | SS-NeRF): "
+        f"Metrics: {config.output_dir / 'metrics.json'}\nEvery property on one view: {config.output_dir / 'summary.png'}"
+        f"\nRenders (ground truth | SS-NeRF): "
         f"{config.output_dir / 'renders'}\nModel config: {config_path}  (try: ns-eval --load-config {config_path} "
         f"--output-path eval.json)\nBrowse every property: ns-viewer --load-config {config_path}\n"
         f"Fly-through video of every property: ns-render camera-path --load-config {config_path} "
