@@ -81,15 +81,16 @@ def test_ns_export_pointcloud_in_class_colours(trained_scene, renders, tmp_path:
 
 
 def test_ns_export_meshes(trained_scene, tmp_path: Path) -> None:
-    """Poisson (from the world normals) and TSDF (semantics as the colour) run and write a non-empty mesh."""
+    """Poisson (from the world normals) and TSDF (semantics as the colour) run and write a non-empty mesh. (Their
+    default "nerf" texturing unwraps the mesh in a Python loop: minutes on a CPU, so the vertex colours are used.)"""
     import open3d as o3d
 
     _, config_path = trained_scene
     ExportPoissonMesh(load_config=config_path, output_dir=tmp_path / "poisson", num_points=3000,
                       remove_outliers=False, normal_output_name="normals_world", num_rays_per_batch=1024,
-                      save_point_cloud=False).main()
+                      save_point_cloud=False, texture_method="point_cloud").main()
     ExportTSDFMesh(load_config=config_path, output_dir=tmp_path / "tsdf", resolution=32, rgb_output_name="semantics",
-                   batch_size=2).main()
+                   batch_size=2, texture_method="tsdf").main()
     for path in (tmp_path / "poisson" / "poisson_mesh.ply", tmp_path / "tsdf" / "tsdf_mesh.ply"):
         mesh = o3d.io.read_triangle_mesh(str(path))
         assert len(mesh.vertices) > 0 and len(mesh.triangles) > 0, path
