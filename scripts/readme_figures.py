@@ -4,13 +4,13 @@
 
 - `docs/summary.png`: the demo's `summary.png` (every property of one test view, ground truth above SS-NeRF), shrunk;
 - `docs/viewer_semantics.png`: nerfstudio's viewer in headless Chromium on the demo's trained model, the camera at the
-  training view whose labels show the most classes, output type `semantics` (the test suite's browser driver).
+  training view that sees the most of the room (largest median depth), output type `semantics` (the test suite's browser driver); the
+  same view's `keypoints` goes to `DEMO_OUTPUT/viewer_keypoints.png`.
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from pathlib import Path
@@ -24,9 +24,11 @@ sys.path.insert(0, str(ROOT / "tests"))
 from browser_driver import (  # noqa: E402
     Chromium, ViewerServer, click_button, find_chromium, labelled_input_js, select_dropdown_option,
 )
-from test_viewer_browser import pick_training_view, wait_for_viewport  # noqa: E402
+from test_viewer_browser import wait_for_viewport  # noqa: E402
 
 TIMEOUT = 180.0
+WIDEN = 1.4
+"""Field of view of the screenshot's camera, relative to the training camera's."""
 
 
 def summary(demo: Path, docs: Path, width: int = 1400) -> Path:
@@ -38,10 +40,20 @@ def summary(demo: Path, docs: Path, width: int = 1400) -> Path:
     return target
 
 
+def widest_view(scene: Path, names: list) -> int:
+    """The training frame that sees the most of the room: the largest median depth."""
+    depths = [np.median(np.asarray(Image.open(scene / "depth" / name), dtype=np.float64)) for name in names]
+    return int(np.argmax(depths))
+
+
+def trained_step(config_path: Path) -> int:
+    checkpoints = sorted((config_path.parent / "nerfstudio_models").glob("step-*.ckpt"))
+    return int(checkpoints[-1].stem.split("-")[1]) + 1 if checkpoints else 0
+
+
 def viewer_screenshot(demo: Path, docs: Path, max_res: int) -> Path:
     config_path = next((demo / "runs").glob("*/*/demo/config.yml"))
     scene = demo / "scene"
-    classes = json.loads((scene / "transforms.json").read_text())["semantic_classes"]
     executable = find_chromium()
     assert executable is not None, "chromium is needed (make system)"
     with ViewerServer(config_path, max_res=max_res) as server, Chromium(
@@ -53,15 +65,19 @@ def viewer_screenshot(demo: Path, docs: Path, max_res: int) -> Path:
         page.wait_for(f"!!{labelled_input_js('Output type')}", TIMEOUT, "the viewer's control panel never showed")
         click_button(page, "Hide Train Cams")
         names = [Path(path).name for path in server.pipeline.datamanager.train_dataset.image_filenames]
-        index, _ = pick_training_view(scene, names, len(classes))
+        index = widest_view(scene, names)
         c2w, fov = server.train_camera(index)
-        server.put_client_camera(client, c2w, fov)
-        since = time.monotonic()
-        select_dropdown_option(page, "Output type", "semantics", timeout=TIMEOUT)
-        sent = server.log.wait_for("semantics", since=since, timeout=TIMEOUT, c2w=c2w)
-        shot = wait_for_viewport(page, sent.image, TIMEOUT)
+        server.put_client_camera(client, c2w, fov * WIDEN)  # the viewport is squarer than the camera: widen it
+        server.viewer.update_step(trained_step(config_path))  # (a loaded model otherwise reads "Step: 0")
+        shots = {}
+        for output in ("keypoints", "semantics"):  # the keypoint view is kept beside the demo's outputs, to look at
+            since = time.monotonic()
+            select_dropdown_option(page, "Output type", output, timeout=TIMEOUT)
+            sent = server.log.wait_for(output, since=since, timeout=TIMEOUT, c2w=c2w)
+            shots[output] = wait_for_viewport(page, sent.image, TIMEOUT)
+    Image.fromarray(np.asarray(shots["keypoints"])).save(demo / "viewer_keypoints.png")
     target = docs / "viewer_semantics.png"
-    Image.fromarray(np.asarray(shot)).save(target, optimize=True)
+    Image.fromarray(np.asarray(shots["semantics"])).save(target, optimize=True)
     return target
 
 

@@ -95,9 +95,13 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             # The paper's L1 drives 1-pixel edge maps to an empty map within a CPU budget (measured: blank after
             # 3000 steps); MSE renders them (README, "What to expect").
             losses={"edges": "mse"},
-            # Properties' gradients into F_enc are 10-100x RGB's at the start; left so, Adam lets them set F_enc's
-            # updates and RGB loses ~4 dB at 1000 steps. Capped at half of RGB's (README, "Multi-task balancing").
-            balance_ratio=0.5,
+            # Properties' gradients into F_enc are 2-45x RGB's at the start; left so, Adam lets them set F_enc's
+            # updates and RGB loses ~4-8 dB at 1000 steps. Each is capped at a quarter of RGB's, and each property has
+            # its own decoder MLP on a 32-number feature (nerfacto's 15 is sized for RGB alone): measured best on the
+            # default scenes (README, "Multi-task balancing").
+            balance_ratio=0.25,
+            decoder_sharing="property",
+            grid_feature_dim=32,
         ),
     ),
     optimizers={

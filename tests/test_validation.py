@@ -272,3 +272,14 @@ def test_readme_lists_exactly_these_faults() -> None:
     block = readme.split("<!-- bad-input list: tests/test_validation.py FAULTS -->")[1].split("<!-- end of")[0]
     listed = [line[2:].split(":")[0] for line in block.strip().splitlines()]
     assert listed == list(FAULTS)
+
+
+def test_traceback_on_request(tiny_dataset: Path, capsys, monkeypatch) -> None:
+    """`SSNERF_TRACEBACK=1` hands the error to Python's own hook: the full traceback, for debugging."""
+    FAULTS["nan pose"][0](tiny_dataset)
+    with pytest.raises(UserError) as error:
+        validate_dataset(tiny_dataset).raise_if_faulty()
+    monkeypatch.setenv("SSNERF_TRACEBACK", "1")
+    monkeypatch.setattr(sys, "argv", ["ns-train"])
+    sys.excepthook(type(error.value), error.value, error.value.__traceback__)
+    assert "Traceback (most recent call last)" in capsys.readouterr().err
