@@ -96,6 +96,9 @@ def validate_dataset(
     except UnicodeDecodeError as err:
         validation.faults.append(f"{path}: not a text file ({err.reason}). Restore it from a backup or regenerate it.")
         return validation
+    except OSError as err:
+        validation.faults.append(f"{path}: cannot be read ({err.strerror}). Check its permissions.")
+        return validation
     except json.JSONDecodeError as err:
         validation.faults.append(
             f"{path}: not valid JSON ({err.msg} at line {err.lineno}, column {err.colno}). Restore it from a backup "

@@ -28,11 +28,15 @@ class GpuCheckConfig:
     output: Path = Path("reports/gpu_check")
     """Scene, runs and the JSON (`gpu_check.json`)."""
     width: int = 640
+    """Generated scene's image width."""
     height: int = 480
+    """Generated scene's image height."""
     num_frames: int = 30
     """Frames of the generated scene (every 5th is a test view)."""
     steps_lite: int = 1000
+    """Training steps of `ssnerf-lite`."""
     steps_ssnerf: int = 1000
+    """Training steps of `ssnerf`."""
     dry_run: bool = False
     """Print the plan and exit, even with a GPU."""
 
