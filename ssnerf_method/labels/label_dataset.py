@@ -364,9 +364,9 @@ def output_path(config: LabelDatasetConfig, transforms: Transforms) -> Path:
 
 
 def rebase_paths(meta: Dict, source: Path, target: Path) -> Dict:
-    """`meta` with every file path of its frames and splits made relative to `target` instead of `source`."""
+    """A copy of `meta` with every file path of its frames and splits made relative to `target` instead of `source`."""
     if source.resolve() == target.resolve():
-        return meta
+        return dict(meta)
 
     def moved(value: str) -> str:
         return os.path.relpath(source / value, target)
