@@ -182,13 +182,17 @@ def test_branches_condition_on_view_direction_and_pose() -> None:
         assert torch.allclose(nv_a[name], nv_b[name])
 
 
-def test_pose_conditioned_field_needs_pose_metadata() -> None:
+def test_pose_conditioned_field_reads_the_pose_and_defaults_to_identity() -> None:
+    """The pose is a decoder input; rays without one (nerfstudio's exporter probes) get the identity pose."""
     specs = resolve_properties(["semantics", "normals"], normals_mode="pose")
     field = make_field(specs, pose_conditioned=True)
-    with pytest.raises(RuntimeError, match=POSE_METADATA_KEY):
-        field(make_samples(make_bundle(pose=False)))
+    identity = make_bundle(pose=False)
+    identity.metadata = {POSE_METADATA_KEY: torch.eye(4)[:3].reshape(1, 12).expand(NUM_RAYS, 12).clone()}
     with torch.no_grad():
+        without = field(make_samples(make_bundle(pose=False)))["normals"]
+        assert torch.allclose(without, field(make_samples(identity))["normals"])
         outputs = field(make_samples(make_bundle(pose=True)))
+    assert not torch.allclose(outputs["normals"], without)  # the pose (here translated) changes the prediction
     assert outputs["normals"].shape == (NUM_RAYS, NUM_SAMPLES, 3)
     # pose mode: sigmoid activation, the camera-frame encoding directly
     assert ((outputs["normals"] >= 0) & (outputs["normals"] <= 1)).all()
