@@ -27,7 +27,7 @@ def renders(trained_scene) -> Tuple[object, Dict[str, np.ndarray]]:
     _, config_path = trained_scene
     _, pipeline, _, _ = eval_setup(config_path)
     cameras = pipeline.datamanager.train_dataset.cameras
-    points, normals, classes, views = [], [], [], []
+    points, normals, classes = [], [], []
     for index in range(len(cameras)):
         camera = cameras[index : index + 1]
         outputs = pipeline.model.render_camera(camera)
@@ -36,10 +36,8 @@ def renders(trained_scene) -> Tuple[object, Dict[str, np.ndarray]]:
         rotation = camera.camera_to_worlds[0, :3, :3]
         camera_frame = outputs["normals"].reshape(-1, 3) * 2.0 - 1.0
         normals.append(torch.nn.functional.normalize(camera_frame @ rotation.T, dim=-1))
-        classes.append(outputs["semantics_logits"].argmax(-1))
-        views.append(outputs["semantics_logits"].argmax(-1))
-    arrays = {"points": torch.cat(points).numpy(), "normals": torch.cat(normals).numpy()}
-    return pipeline, {**arrays, "classes": [view.numpy() for view in classes]}
+        classes.append(outputs["semantics_logits"].argmax(-1).numpy())
+    return pipeline, {"points": torch.cat(points).numpy(), "normals": torch.cat(normals).numpy(), "classes": classes}
 
 
 def read_vertices(path: Path) -> np.ndarray:

@@ -355,6 +355,10 @@ def label_frame(
     return keys, outcomes, context.semantic_ids
 
 
+SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
+"""Top-level transforms keys that list image paths (rewritten with the frames' when the output moves)."""
+
+
 def output_path(config: LabelDatasetConfig, transforms: Transforms) -> Path:
     """The transforms file `ssnerf-label` writes: the dataset's own, a new name beside it, or a path elsewhere."""
     if config.output is None:
@@ -376,9 +380,6 @@ def rebase_paths(meta: Dict, source: Path, target: Path) -> Dict:
               for frame in meta["frames"]]
     splits = {key: [moved(value) for value in meta[key]] for key in SPLIT_KEYS if key in meta}
     return {**meta, **splits, "frames": frames}
-
-
-SPLIT_KEYS = ("train_filenames", "val_filenames", "test_filenames")
 
 
 def label_dataset(
