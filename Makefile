@@ -25,5 +25,10 @@ system:
 demo: env
 	$(BIN)/ssnerf-demo --output-dir demo_output --overwrite
 
-test: env system
+# The cluster extra (Ray) too, so that the tests cover `--launcher ray`.
+$(VENV)/.cluster: $(VENV)/.installed
+	$(BIN)/pip install -e '.[cluster]'
+	touch $@
+
+test: env system $(VENV)/.cluster
 	$(BIN)/python -m pytest -q

@@ -96,10 +96,10 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             # 3000 steps); MSE renders them (README, "What to expect").
             losses={"edges": "mse"},
             # Properties' gradients into F_enc are 2-45x RGB's at the start; left so, Adam lets them set F_enc's
-            # updates and RGB loses ~4-8 dB at 1000 steps. Each is capped at a quarter of RGB's, and each property has
+            # updates and RGB loses ~4-8 dB at 1000 steps. Each is capped at a tenth of RGB's, and each property has
             # its own decoder MLP on a 32-number feature (nerfacto's 15 is sized for RGB alone): measured best on the
             # default scenes (README, "Multi-task balancing").
-            balance_ratio=0.25,
+            balance_ratio=0.1,
             decoder_sharing="property",
             grid_feature_dim=32,
         ),

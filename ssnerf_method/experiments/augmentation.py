@@ -32,7 +32,9 @@ from ssnerf_method.data.export_dataset import ExportDatasetConfig, export_datase
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.errors import UserError
 from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes, run_tag
+from ssnerf_method.experiments.launcher import launch
 from ssnerf_method.experiments.report import average, columns_of, property_columns, property_table
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
@@ -68,6 +70,9 @@ class AugmentationStudy(StudyConfig):
     scope = ("Task networks trained on the training data of all scenes together; metrics on each scene's test views "
              "(real RGB in), computed as `ns-eval` does, then averaged over the scenes.")
 
+    def runs(self) -> List[ModelRun]:
+        return [ModelRun(single(prop), (prop,)) for prop in self.properties]
+
     def network_config(self) -> HybridBaselineConfig:
         return HybridBaselineConfig(width=8, depth=3, steps=30, batch_size=4) if self.quick else self.task_network
 
@@ -82,6 +87,7 @@ class AugmentationStudy(StudyConfig):
         data: Dict[str, Dict[str, List[SSNeRFDataset]]] = {prop: {} for prop in self.properties}
         tests = {scene.name: load_split(scene, "test") for scene in scenes}
         details: Dict[str, Any] = {}
+        launch(config, self.jobs(config, scenes))
         for scene in scenes:
             bench = SceneBenchmark(config, scene, scene.name)
             ground_truth = load_split(scene, "train")
@@ -90,6 +96,10 @@ class AugmentationStudy(StudyConfig):
                 run = ModelRun(single(prop), (prop,))
                 CONSOLE.print(f"[bold]augmentation study, {scene.name}: {run.name} and its renders")
                 metrics = bench.train_and_score(run)
+                if "failed" in metrics:  # its renders, and so the task networks, cannot be made
+                    raise UserError(f"{scene.name}/{run.name} failed ({metrics['failed']['error']}), log "
+                                    f"{metrics['failed']['log']}: run the study again to retry it (finished runs "
+                                    "are kept)")
                 record = {key: metrics.get(key) for key in RUN_RECORD}
                 details[scene.name][run.name] = {"properties": [prop], **record}
                 data[prop].setdefault("ground truth", []).append(ground_truth)

@@ -27,6 +27,7 @@ from ssnerf_method.data.io import StagedOutputFolder, encode_png
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, SceneBenchmark, generated_scenes
+from ssnerf_method.experiments.launcher import launch
 from ssnerf_method.experiments.report import Column, average, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
@@ -96,22 +97,31 @@ class AutoLabelStudy(StudyConfig):
         config.output.mkdir(parents=True, exist_ok=True)
         clean_scenes = list(config.scenes) or generated_scenes(config)
         results: Results = {}
+        run = ModelRun(single(self.target), (self.target,))
+        launch(config, [self.weak_benchmark(config, clean, rate).job(run)
+                        for clean in clean_scenes for rate in self.chosen_rates()])
         for clean in clean_scenes:
             for rate in self.chosen_rates():
-                name = self.weak_name(clean, rate)
-                weak = config.output / "weak" / name
-                if not (weak / "transforms.json").is_file():
-                    make_weak_dataset(clean, weak, spec, rate, self.mode, self.seed)
-                bench = SceneBenchmark(config, weak, name)
-                run = ModelRun(single(self.target), (self.target,))
+                bench = self.weak_benchmark(config, clean, rate)
                 trained = bench.train_and_score(run)
-                results.setdefault(clean.name, {})[f"{rate:g}"] = {**self.score(clean, weak, bench, run, spec),
-                                                                    **{key: trained.get(key) for key in RUN_RECORD}}
-        self.figure(clean_scenes[0], config, spec)
+                scores = self.score(clean, bench.scene, bench, run, spec) if "failed" not in trained else {
+                    "failed": trained["failed"]}
+                results.setdefault(clean.name, {})[f"{rate:g}"] = {
+                    **scores, **{key: trained.get(key) for key in RUN_RECORD}}
+        if not any("failed" in row for rows in results.values() for row in rows.values()):
+            self.figure(clean_scenes[0], config, spec)
         runs = {scene: {rate: {key: values.get(key) for key in RUN_RECORD}
                         for rate, values in by_rate.items()} for scene, by_rate in results.items()}
         write_study_report(self, results, runs, time.time() - start)
         return results
+
+    def weak_benchmark(self, config: BenchmarkConfig, clean: Path, rate: float) -> SceneBenchmark:
+        """The weak copy of `clean` at `rate` (made once) and its benchmark."""
+        name = self.weak_name(clean, rate)
+        weak = config.output / "weak" / name
+        if not (weak / "transforms.json").is_file():
+            make_weak_dataset(clean, weak, REGISTRY[self.target], rate, self.mode, self.seed)
+        return SceneBenchmark(config, weak, name)
 
     def weak_name(self, clean: Path, rate: float) -> str:
         suffix = f"-{self.mode}" if REGISTRY[self.target].corruption == "classes" else ""

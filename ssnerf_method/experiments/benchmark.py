@@ -8,7 +8,8 @@ Hybrid baseline (per-property annotators applied to the NeRF's renders); and wri
 figure per scene (ground truth, SS-NeRF, Heuristic, Hybrid on one test view, every property side by side).
 
 Every finished step leaves its result under `OUTPUT/runs/<scene>/`; running the command again skips it, so a stopped
-run resumes where it stopped (a finished model is never retrained).
+run resumes where it stopped (a finished model is never retrained). With `--launcher ray` the trainings and baselines
+run as Ray tasks (`experiments/launcher.py`) and the report is written from their results.
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from __future__ import annotations
 import json
 import time
 from copy import deepcopy
+from functools import partial
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Literal, Optional, Tuple
@@ -35,6 +37,7 @@ from ssnerf_method.evaluation.figures import property_grid, shown, shown_label
 from ssnerf_method.evaluation.heuristic import DepthSource, HeuristicBaseline, HeuristicBaselineConfig
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch, write_atomically
 from ssnerf_method.experiments.report import write_report
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertySpec, resolve_properties
@@ -48,6 +51,8 @@ NERF = "nerf"
 """Run name of the RGB-only model (the Hybrid baseline's renderer and Table 2's NeRF row)."""
 ALL = "ssnerf-all"
 """Run name of the all-properties model."""
+BASELINES = ("heuristic", "hybrid")
+"""The paper's two baselines, rows of Table 1."""
 
 
 @dataclass
@@ -67,9 +72,9 @@ def default_method() -> Literal["ssnerf-lite", "ssnerf"]:
 
 
 @dataclass
-class ScenesRunsConfig:
+class ScenesRunsConfig(LauncherOptions):
     """What `ssnerf-benchmark` and every `ssnerf-study` share: the scenes, the architecture, the output folder of the
-    runs, the steps per model, and --quick."""
+    runs, the steps per model, --quick, and where the trainings run (--launcher)."""
 
     scenes: Tuple[Path, ...] = ()
     """Datasets in the SS-NeRF format. Default: two generated default scenes (seeds 0 and 1) in OUTPUT/scenes."""
@@ -200,22 +205,16 @@ class SceneBenchmark:
         """Train one model unless its metrics exist; return its test-split metrics, with `train_seconds` (the
         wall-clock time of its training), nerfstudio's `seed` and `config` (the run's config.yml)."""
         result = self.run_dir(run.name) / "metrics.json"
-        if result.is_file():
-            CONSOLE.print(f"[dim]{self.name}/{run.name}: done earlier, reusing {result}")
-            metrics = json.loads(result.read_text())
-        else:
-            trainer = self.trainer_config(run)
-            seconds = None
-            if not self.checkpoint(run.name).is_file():
-                what = ", ".join(run.properties) or "RGB only"
-                CONSOLE.rule(f"{self.name}: training {run.name} ({what}) for {self.steps} steps")
-                start = time.time()
-                train_main(trainer)
-                seconds = round(time.time() - start, 1)
-            _, pipeline, _, _ = eval_setup(self.config_path(run.name), test_mode="test")
-            metrics = pipeline.get_average_eval_image_metrics()
-            metrics.update(train_seconds=seconds, seed=trainer.machine.seed)
-            result.write_text(json.dumps(metrics, indent=2))
+        failed = self.failed(self.log(run.name))
+        if failed is not None and not result.is_file():
+            return {"failed": failed, "config": str(self.config_path(run.name))}
+        with exclusive(self.run_dir(run.name).with_name(self.tag + ".lock")):
+            if result.is_file():
+                CONSOLE.print(f"[dim]{self.name}/{run.name}: done earlier, reusing {result}")
+                metrics = json.loads(result.read_text())
+            else:
+                metrics = self.train_and_evaluate(run)
+                write_atomically(result, json.dumps(metrics, indent=2))
         config, checkpoint = self.config_path(run.name), self.checkpoint(run.name)
         if metrics.get("train_seconds") is None and config.is_file() and checkpoint.is_file():
             # trained by an interrupted call or an older version: nerfstudio writes config.yml as training starts
@@ -225,34 +224,92 @@ class SceneBenchmark:
             metrics["seed"] = self.trainer_config(run).machine.seed
         return {**metrics, "config": str(config)}
 
+    def train_and_evaluate(self, run: ModelRun) -> Dict[str, Any]:
+        """Train `run` (unless its final checkpoint exists) and return its test-split metrics."""
+        trainer = self.trainer_config(run)
+        seconds = None
+        if not self.checkpoint(run.name).is_file():
+            what = ", ".join(run.properties) or "RGB only"
+            CONSOLE.rule(f"{self.name}: training {run.name} ({what}) for {self.steps} steps")
+            start = time.time()
+            train_main(trainer)
+            seconds = round(time.time() - start, 1)
+        _, pipeline, _, _ = eval_setup(self.config_path(run.name), test_mode="test")
+        metrics = pipeline.get_average_eval_image_metrics()
+        metrics.update(train_seconds=seconds, seed=trainer.machine.seed)
+        return metrics
+
+    def log(self, run: str) -> Path:
+        """A run's console output when a Ray worker trains it."""
+        return self.run_dir(run) / "launcher.log"
+
+    def failed(self, log: Path) -> Optional[Dict[str, str]]:
+        """The failure a Ray launch recorded for the job logging to `log` (never with --launcher local, which retries
+        everything in this process)."""
+        return failure(log) if self.config.launcher != "local" else None
+
+    def job(self, run: ModelRun, after: Tuple[str, ...] = ()) -> Job:
+        """Training `run` as a launcher job (its key: the run's folder)."""
+        return Job(key=f"{self.name}/{run.name}/{self.config.method}/{self.tag}",
+                   work=partial(train_job, self.config, self.scene, self.name, run),
+                   result=self.run_dir(run.name) / "metrics.json", log=self.log(run.name), after=after)
+
+    def jobs(self) -> List[Job]:
+        """Every model and both baselines (which read the RGB-only model) as launcher jobs."""
+        models = [self.job(run) for run in self.models()]
+        nerf = next(job.key for job, run in zip(models, self.models()) if run.name == NERF)
+        baselines = [Job(key=f"{self.name}/{name}-{self.config.method}-{self.tag}",
+                         work=partial(baseline_job, self.config, self.scene, self.name, name),
+                         result=self.baseline_path(name), log=self.baseline_path(name).with_suffix(".log"),
+                         after=(nerf,))
+                     for name in BASELINES]
+        return [*models, *baselines]
+
     def load(self, run: str) -> Pipeline:
         return eval_setup(self.config_path(run), test_mode="test")[1]
 
-    def baseline(self, name: str, score: Callable[[], Dict[str, float]]) -> Dict[str, float]:
-        result = self.folder / f"{name}-{self.config.method}-{self.tag}.json"  # the Hybrid scores the NeRF's renders
-        if result.is_file():
-            return json.loads(result.read_text())
-        CONSOLE.rule(f"{self.name}: {name} baseline")
-        metrics = score()
-        result.write_text(json.dumps(metrics, indent=2))
+    def baseline_path(self, name: str) -> Path:
+        """A baseline's scores (per method and schedule: the Hybrid scores the NeRF's renders)."""
+        return self.folder / f"{name}-{self.config.method}-{self.tag}.json"
+
+    def baseline(self, name: str) -> Dict[str, Any]:
+        """A baseline's test-split scores (`heuristic` or `hybrid`), computed once."""
+        result = self.baseline_path(name)
+        failed = self.failed(result.with_suffix(".log"))
+        if failed is not None and not result.is_file():
+            return {"failed": failed}
+        with exclusive(result.with_suffix(".lock")):
+            if result.is_file():
+                return json.loads(result.read_text())
+            CONSOLE.rule(f"{self.name}: {name} baseline")
+            nerf = self.load(NERF)
+            specs = self.baseline_specs(nerf)
+            num_classes = len(nerf.datamanager.train_dataset.metadata.get("semantic_classes", []))  # type: ignore
+            if name == "heuristic":
+                predict = self.heuristic(nerf, specs, num_classes).predict_view
+            else:
+                predict = self.hybrid(nerf, specs, num_classes).predictor(rgb_renderer(nerf))
+            metrics = score_predictor(predict, self.test_dataset(nerf), specs, num_classes)
+            write_atomically(result, json.dumps(metrics, indent=2))
         return metrics
 
-    def run(self) -> Dict[str, Dict[str, float]]:
-        """Every model and both baselines on this scene: name -> test-split metrics."""
+    def run(self) -> Dict[str, Dict[str, Any]]:
+        """Every model and both baselines on this scene: name -> test-split metrics (or {"failed": ...} for a run
+        a Ray launch could not finish)."""
         models = self.models()
         results = {}
         for number, run in enumerate(models, start=1):
             CONSOLE.print(f"[bold]{self.name}: model {number}/{len(models)}: {run.name}")
             results[run.name] = self.train_and_score(run)
-        nerf = self.load(NERF)
-        specs = self.baseline_specs(nerf)
-        num_classes = len(nerf.datamanager.train_dataset.metadata.get("semantic_classes", []))  # type: ignore
-        results["heuristic"] = self.baseline("heuristic", lambda: score_predictor(
-            self.heuristic(nerf, specs, num_classes).predict_view, self.test_dataset(nerf), specs, num_classes))
-        results["hybrid"] = self.baseline("hybrid", lambda: score_predictor(
-            self.hybrid(nerf, specs, num_classes).predictor(rgb_renderer(nerf)), self.test_dataset(nerf), specs,
-            num_classes))
-        self.figure(nerf, specs, num_classes)
+        for name in BASELINES:
+            results[name] = self.baseline(name)
+        lost = [name for name, metrics in results.items() if "failed" in metrics]
+        if lost:
+            CONSOLE.print(f"[yellow]{self.name}: no figure, {', '.join(lost)} failed")
+        else:
+            nerf = self.load(NERF)
+            specs = self.baseline_specs(nerf)
+            self.figure(nerf, specs, len(nerf.datamanager.train_dataset.metadata.get("semantic_classes", [])))  # type: ignore
         return results
 
     def baseline_specs(self, pipeline: Pipeline) -> List[PropertySpec]:
@@ -315,6 +372,16 @@ class SceneBenchmark:
         return path
 
 
+def train_job(config: BenchmarkConfig, scene: Path, name: str, run: ModelRun) -> None:
+    """A launcher job: train and score one run (module level, so Ray can send it to a worker)."""
+    SceneBenchmark(config, scene, name).train_and_score(run)
+
+
+def baseline_job(config: BenchmarkConfig, scene: Path, name: str, baseline: str) -> None:
+    """A launcher job: score one baseline on one scene."""
+    SceneBenchmark(config, scene, name).baseline(baseline)
+
+
 def rgb_renderer(pipeline: Pipeline) -> Callable[[object, int], torch.Tensor]:
     """Render RGB for camera `index` of a `Cameras` with a trained pipeline (CPU tensor, H x W x 3)."""
 
@@ -347,9 +414,9 @@ def run(config: BenchmarkConfig) -> Dict[str, Dict[str, Dict[str, float]]]:
     scenes = list(config.scenes) or generated_scenes(config)
     plain = [scene.name for scene in scenes]
     names = [scene.name if plain.count(scene.name) == 1 else f"{scene.parent.name}_{scene.name}" for scene in scenes]
-    results = {}
-    for scene, name in zip(scenes, names):
-        results[name] = SceneBenchmark(config, scene, name).run()
+    benches = [SceneBenchmark(config, scene, name) for scene, name in zip(scenes, names)]
+    launch(config, [job for bench in benches for job in bench.jobs()])
+    results = {bench.name: bench.run() for bench in benches}
     report = write_report(config.output, results, list(config.properties), config.method,
                           config.steps or DEFAULT_STEPS[config.method], config.lr_drop)
     CONSOLE.print(report.read_text())
@@ -363,4 +430,7 @@ def entrypoint() -> None:
 
 
 if __name__ == "__main__":
-    entrypoint()
+    # through the importable module: Ray sends its jobs' functions by reference, and `__main__`'s would go by value
+    from ssnerf_method.experiments import benchmark
+
+    benchmark.entrypoint()

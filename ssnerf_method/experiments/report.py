@@ -126,6 +126,15 @@ def training_words(method: str, steps: int, lr_drop: Optional[float] = None) -> 
     return f"{method}, {steps} steps per model{drop}"
 
 
+def failures(results: Dict[str, Dict[str, Dict]]) -> str:
+    """A report's section listing the runs a Ray launch could not finish (error and log), or "" if none."""
+    lines = [f"- {scene} / {run}: {metrics['failed']['error']}; log `{metrics['failed']['log']}`"
+             for scene, runs in results.items() for run, metrics in runs.items()
+             if isinstance(metrics, dict) and "failed" in metrics]
+    return "## Failed runs (their cells are empty; run the command again to retry them)\n\n" + "\n".join(lines) \
+        if lines else ""
+
+
 def write_report(output: Path, results: Results, properties: Sequence[str], method: str, steps: int,
                  lr_drop: Optional[float] = None) -> Path:
     """Write `report.md` and `tables.json` into `output`; returns the report's path."""
@@ -148,6 +157,7 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
         markdown(second, ["nerf", *(f"ssnerf-{name}" for name in properties)],
                  ["NeRF", *(f"SS-NeRF-{REGISTRY[name].short}" for name in properties)], 2),
         "Figures: " + ", ".join(f"`figure_{scene}.png`" for scene in results),
+        failures(results),
     ])
     path = output / "report.md"
     path.write_text(report + "\n")

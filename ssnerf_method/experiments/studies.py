@@ -36,11 +36,13 @@ from ssnerf_method.experiments.benchmark import (
     generated_scenes,
     quick_config,
 )
+from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import (
     Column,
     average,
     cell,
     columns_of,
+    failures,
     headline,
     markdown,
     property_columns,
@@ -78,6 +80,10 @@ class StudyConfig(ScenesRunsConfig):
 
     def runs(self) -> List[ModelRun]:
         raise NotImplementedError
+
+    def jobs(self, config: BenchmarkConfig, scenes: List[Path]) -> List[Job]:
+        """The study's trainings as launcher jobs (`--launcher ray` runs them before the report is written)."""
+        return [SceneBenchmark(config, scene, scene.name).job(run) for scene in scenes for run in self.runs()]
 
     def run(self) -> Results:
         """Train what the study needs on every scene and write its report."""
@@ -254,6 +260,7 @@ def run_study(study: StudyConfig) -> Results:
     config.output.mkdir(parents=True, exist_ok=True)
     scenes = list(config.scenes) or generated_scenes(config)
     runs = study.runs()
+    launch(config, study.jobs(config, scenes))
     results: Results = {}
     for scene in scenes:
         bench = SceneBenchmark(config, scene, scene.name)
@@ -279,14 +286,15 @@ def write_study_report(study: StudyConfig, results: Results, runs: Dict[str, Any
         "steps": steps, "lr_drop": config.lr_drop, "quick": config.quick, "wall_clock_seconds": round(seconds, 1),
         "runs": runs,
     }
-    report = "\n\n".join([
+    report = "\n\n".join(part for part in [
         f"# SS-NeRF {study.name} study ({training_words(config.method, steps, config.lr_drop)}"
         f"{', --quick' if config.quick else ''})",
         f"Scenes: {', '.join(results)}. {study.scope}",
         text,
+        failures(results),
         f"Command: `{details['command']}`; commit {details['commit']}; {details['wall_clock_seconds']} s in all; "
         f"per-run training time and seed in `study_{study.name}.json`.",
-    ])
+    ] if part)
     path = config.output / f"study_{study.name}.md"
     path.write_text(report + "\n")
     (config.output / f"study_{study.name}.json").write_text(

@@ -26,7 +26,8 @@ from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
-from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes
+from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, SceneBenchmark, generated_scenes
+from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import average, headline, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.properties import REGISTRY
@@ -89,6 +90,31 @@ class TransferStudy(StudyConfig):
             return ModelRun(single(self.target), (self.target,))
         return ModelRun(f"{single(self.target)}-from-{source}", (self.target,))
 
+    def benchmarks(self, config: BenchmarkConfig, scene: Path) -> Tuple[SceneBenchmark, SceneBenchmark]:
+        """The scene with all its views (the sources) and its k-view copy (the target), made once."""
+        limited_root = config.output / "limited" / f"{scene.name}-{self.views}views"
+        if not (limited_root / "transforms.json").is_file():
+            make_limited_dataset(scene, limited_root, self.views)
+        return SceneBenchmark(config, scene, scene.name), SceneBenchmark(config, limited_root, limited_root.name)
+
+    def transfer_runs(self, full: SceneBenchmark, source: str) -> Tuple[ModelRun, ModelRun]:
+        """The all-view source model and the k-view target initialised with its F_enc."""
+        source_run = ModelRun(single(source), (source,))
+        overrides = {"encoder_init": full.checkpoint(source_run.name)}
+        return source_run, ModelRun(self.target_run(source).name, (self.target,), overrides)
+
+    def jobs(self, config: BenchmarkConfig, scenes: List[Path]) -> List[Job]:
+        """The k-view target from scratch, each source, and each transferred target after its source."""
+        jobs = []
+        for scene in scenes:
+            full, limited = self.benchmarks(config, scene)
+            jobs.append(limited.job(self.target_run()))
+            for source in self.sources:
+                source_run, run = self.transfer_runs(full, source)
+                source_job = full.job(source_run)
+                jobs += [source_job, limited.job(run, after=(source_job.key,))]
+        return jobs
+
     def run(self) -> Results:
         """Source models (all views), the k-view target from scratch and from each source; report and figures."""
         start = time.time()
@@ -98,29 +124,25 @@ class TransferStudy(StudyConfig):
         results: Results = {}
         details: Dict[str, Any] = {}
         self.chosen: Dict[str, List[str]] = {}
+        launch(config, self.jobs(config, scenes))
         for scene in scenes:
-            full = SceneBenchmark(config, scene, scene.name)
-            limited_root = config.output / "limited" / f"{scene.name}-{self.views}views"
-            if not (limited_root / "transforms.json").is_file():
-                make_limited_dataset(scene, limited_root, self.views)
-            meta = json.loads((limited_root / "transforms.json").read_text())
+            full, limited = self.benchmarks(config, scene)
+            meta = json.loads((limited.scene / "transforms.json").read_text())
             self.chosen[scene.name] = meta["ssnerf_limited_views"]["train_filenames"]
-            limited = SceneBenchmark(config, limited_root, limited_root.name)
             CONSOLE.print(f"[bold]transfer study, {scene.name}: {self.target} on {self.views} views from scratch")
             runs = {LIMITED: (limited.train_and_score(self.target_run()), self.target_run(), {})}
             for source in self.sources:
                 CONSOLE.print(f"[bold]transfer study, {scene.name}: {source} (all views), then {self.row(source)}")
-                source_run = ModelRun(single(source), (source,))
+                source_run, run = self.transfer_runs(full, source)
                 full.train_and_score(source_run)
-                overrides = {"encoder_init": full.checkpoint(source_run.name)}
-                run = ModelRun(self.target_run(source).name, (self.target,), overrides)
                 runs[self.row(source)] = (limited.train_and_score(run), run, {"source_run": source_run.name})
             results[scene.name] = {row: metrics for row, (metrics, _, _) in runs.items()}
             details[scene.name] = {row: {"run": f"{limited.folder.name}/{run.name}", "properties": list(run.properties),
                                          "overrides": {key: str(value) for key, value in run.overrides.items()},
                                          **{key: metrics.get(key) for key in RUN_RECORD}, **extra}
                                    for row, (metrics, run, extra) in runs.items()}
-            self.figure(scene, limited, config.output / f"figure_transfer_{scene.name}.png")
+            if not any("failed" in metrics for metrics, _, _ in runs.values()):
+                self.figure(scene, limited, config.output / f"figure_transfer_{scene.name}.png")
         write_study_report(self, results, details, time.time() - start)
         return results
 
