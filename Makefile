@@ -25,10 +25,11 @@ system:
 demo: env
 	$(BIN)/ssnerf-demo --output-dir demo_output --overwrite
 
-# The cluster extra (Ray) too, so that the tests cover `--launcher ray`.
-$(VENV)/.cluster: $(VENV)/.installed
-	$(BIN)/pip install -e '.[cluster]'
+# The test extras (pytest, ruff) and the cluster extra (Ray), so that the tests cover `--launcher ray`.
+$(VENV)/.test-extras: $(VENV)/.installed
+	$(BIN)/pip install -e '.[cluster,test]'
 	touch $@
 
-test: env system $(VENV)/.cluster
+test: env system $(VENV)/.test-extras
+	$(BIN)/ruff check ssnerf_method tests scripts
 	$(BIN)/python -m pytest -q

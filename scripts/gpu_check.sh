@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # The GPU check, for a machine with one NVIDIA GPU (about 8 minutes in all): makes the environment if there is none
-# (the README's `make env`), runs the CUDA-only tests, trains ssnerf-lite and ssnerf on a 640x480 generated scene and
+# (the README's `make env`, plus the test extra), runs the CUDA-only tests, trains ssnerf-lite and ssnerf on a 640x480 generated scene and
 # prints one JSON line (rays/s, GPU memory peak, PSNR, mIoU per method). Without CUDA it prints its plan and exits 0.
 #   scripts/gpu_check.sh [--dry-run] [--steps-lite N] [--steps-ssnerf N] [--output DIR]
 set -euo pipefail
@@ -14,5 +14,8 @@ elif command -v nvidia-smi >/dev/null 2>&1 && [[ " $* " != *" --dry-run "* ]]; t
 else
   echo '{"dry_run": true, "reason": "no environment and no GPU: run make env first", "plan": ["make env", "python -m ssnerf_method.scripts.gpu_check"]}'
   exit 0
+fi
+if [[ " $* " != *" --dry-run "* ]] && ! "$PYTHON" -c "import pytest" 2>/dev/null; then
+  "$PYTHON" -m pip install -q -e '.[test]' >&2                # pytest, for the CUDA-only tests
 fi
 exec "$PYTHON" -m ssnerf_method.scripts.gpu_check "$@"

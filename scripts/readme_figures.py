@@ -4,7 +4,8 @@
 
 - `docs/summary.png`: the demo's `summary.png` (every property of one test view, ground truth above SS-NeRF), shrunk;
 - `docs/viewer_semantics.png`: nerfstudio's viewer in headless Chromium on the demo's trained model, the camera at the
-  training view that sees the most of the room (largest median depth), output type `semantics` (the test suite's browser driver); the
+  training view that sees the most of the room (largest median depth), output type `semantics` (the test suite's
+  browser driver); the
   same view's `keypoints` goes to `DEMO_OUTPUT/viewer_keypoints.png`.
 """
 
@@ -22,7 +23,12 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
 from browser_driver import (  # noqa: E402
-    Chromium, ViewerServer, click_button, find_chromium, labelled_input_js, select_dropdown_option,
+    Chromium,
+    ViewerServer,
+    click_button,
+    find_chromium,
+    labelled_input_js,
+    select_dropdown_option,
 )
 from test_viewer_browser import wait_for_viewport  # noqa: E402
 

@@ -6,8 +6,8 @@ is allowed to load); nerfstudio imports this package through the config's `_targ
 
 nerfstudio 1.1.5 also makes torch warn: `Cameras` indexes with a list on every ray batch, and importing it decorates
 functions with `torch.jit.script` and `torch.cuda.amp.custom_fwd/bwd`. Exactly those warnings, from exactly those
-places, are silenced; nothing else is. (`ns-train` imports nerfstudio before it discovers this plugin, so its import-time
-warnings come first; the per-batch one is silenced from the plugin's import on.)
+places, are silenced; nothing else is. (`ns-train` imports nerfstudio before it discovers this plugin, so its
+import-time warnings come first; the per-batch one is silenced from the plugin's import on.)
 """
 
 from __future__ import annotations
@@ -15,7 +15,6 @@ from __future__ import annotations
 import warnings
 
 import numpy as np
-
 
 KNOWN_WARNINGS = (
     (FutureWarning, r"`torch\.jit\.script` is deprecated", r"torch\.jit\._script"),

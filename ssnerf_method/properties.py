@@ -379,12 +379,18 @@ class PropertySpec:
 REGISTRY: Dict[str, PropertySpec] = {
     spec.name: spec
     for spec in (
-        PropertySpec("rgb", "RGB", ColorKind(), None, "v", "mse", 1.0, "psnr", "default"),
-        PropertySpec("semantics", "SL", ClassKind(), "semantics_file_path", "nv", "cross_entropy", 0.04, "miou", "default", "classes"),
-        PropertySpec("normals", "SN", NormalKind(), "normals_file_path", "nv", "mse", 1.0, "normal", "default", "dense"),
-        PropertySpec("shading", "SH", ScalarKind("sigmoid"), "shading_file_path", "v", "l1", 0.1, "l1", "gray", "dense"),
-        PropertySpec("keypoints", "KP", ScalarKind("sigmoid"), "keypoints_file_path", "v", "l1", 2.0, "keypoint", "gray", "sparse"),
-        PropertySpec("edges", "ED", ScalarKind("sigmoid"), "edges_file_path", "v", "l1", 0.4, "edge", "gray", "sparse"),
+        PropertySpec(name="rgb", short="RGB", kind=ColorKind(), file_key=None, branch="v", loss="mse", weight=1.0,
+                     metric="psnr", colormap="default"),
+        PropertySpec(name="semantics", short="SL", kind=ClassKind(), file_key="semantics_file_path", branch="nv",
+                     loss="cross_entropy", weight=0.04, metric="miou", colormap="default", corruption="classes"),
+        PropertySpec(name="normals", short="SN", kind=NormalKind(), file_key="normals_file_path", branch="nv",
+                     loss="mse", weight=1.0, metric="normal", colormap="default", corruption="dense"),
+        PropertySpec(name="shading", short="SH", kind=ScalarKind("sigmoid"), file_key="shading_file_path", branch="v",
+                     loss="l1", weight=0.1, metric="l1", colormap="gray", corruption="dense"),
+        PropertySpec(name="keypoints", short="KP", kind=ScalarKind("sigmoid"), file_key="keypoints_file_path",
+                     branch="v", loss="l1", weight=2.0, metric="keypoint", colormap="gray", corruption="sparse"),
+        PropertySpec(name="edges", short="ED", kind=ScalarKind("sigmoid"), file_key="edges_file_path", branch="v",
+                     loss="l1", weight=0.4, metric="edge", colormap="gray", corruption="sparse"),
     )
 }
 """Every property the plugin knows. RGB is always rendered; the others are optional."""

@@ -518,9 +518,9 @@ class ViewerServer:
         self.stop()
 
     def start(self) -> None:
+        from nerfstudio.utils import writer
         from nerfstudio.utils.eval_utils import eval_setup  # (before `writer`: nerfstudio's imports are circular)
         from nerfstudio.viewer.viewer import Viewer
-        from nerfstudio.utils import writer
 
         config, pipeline, _, step = eval_setup(self.config_path, eval_num_rays_per_chunk=None, test_mode="test")
         self.pipeline = pipeline
@@ -591,6 +591,7 @@ class ViewerServer:
         along +z with y down (OpenCV), nerfstudio's along -z with y up, and viser's world is 10x nerfstudio's.
         """
         import viser.transforms as vtf
+
         from nerfstudio.viewer.viewer import VISER_NERFSTUDIO_SCALE_RATIO
 
         rotation = vtf.SO3.from_matrix(c2w[:3, :3]) @ vtf.SO3.from_x_radians(np.pi)

@@ -5,13 +5,12 @@ from __future__ import annotations
 
 import pytest
 import torch
+from test_properties import make_bundle
 
 from nerfstudio.data.scene_box import SceneBox
 
 from ssnerf_method.model.loss_balancing import LossBalancer
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
-
-from test_properties import make_bundle
 
 
 def test_balancer_caps_each_property_at_the_ratio_of_rgbs_gradient() -> None:
@@ -87,23 +86,25 @@ def test_model_scales_every_level_of_a_property_loss_by_its_multiplier() -> None
 def test_property_decoders_share_nothing_between_properties() -> None:
     """`decoder_sharing=property`: each property has its own MLP on its branch's inputs, so RGB's output has no
     gradient in edges' decoder; with the paper's branch sharing the two share the F_dec^v MLP."""
+    from test_properties import NUM_CLASSES, make_samples
+
     from ssnerf_method.fields.encoders import HashGridEncoder
     from ssnerf_method.fields.ssnerf_field import SSNeRFField
     from ssnerf_method.properties import resolve_properties
-
-    from test_properties import NUM_CLASSES, make_samples
 
     specs = resolve_properties(["semantics", "edges"])
     samples = make_samples(make_bundle())
     for sharing, shared in (("property", False), ("branch", True)):
         torch.manual_seed(0)
-        encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16, feature_dim=8)
+        encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16,
+                                  feature_dim=8)
         field = SSNeRFField(specs, NUM_CLASSES, encoder, decoder_width=16, decoder_sharing=sharing)
         outputs = field(samples)
         assert outputs["rgb"].shape[-1] == 3 and outputs["edges"].shape[-1] == 1
         assert outputs["semantics"].shape[-1] == NUM_CLASSES
         v = field.decoders["v"]
-        edges_parameters = list(v.decoders["edges"].mlp.parameters()) if sharing == "property" else list(v.mlp.parameters())
+        edges_mlp = v.decoders["edges"].mlp if sharing == "property" else v.mlp
+        edges_parameters = list(edges_mlp.parameters())
         gradients = torch.autograd.grad(outputs["rgb"].sum(), edges_parameters, allow_unused=True)
         reached = any(g is not None and g.abs().sum() > 0 for g in gradients)
         assert reached == shared

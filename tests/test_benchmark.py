@@ -45,7 +45,7 @@ def test_quick_benchmark_end_to_end_then_resumes(tmp_path: Path, monkeypatch) ->
     torch.set_num_threads(1)
     output = tmp_path / "report"
     results = run(BenchmarkConfig(quick=True, output=output))
-    assert set(results) == {"seed_0", "seed_1"}
+    assert set(results) == {"walkthrough_seed_0", "walkthrough_seed_1"}
     expected_rows = {"nerf", *(f"ssnerf-{name}" for name in PROPERTIES), "ssnerf-all", "heuristic", "hybrid"}
     for rows in results.values():
         assert set(rows) == expected_rows

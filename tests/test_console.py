@@ -6,9 +6,10 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
-import tomllib
 import warnings
 from pathlib import Path
+
+import tomllib
 
 from ssnerf_method.compat import KNOWN_WARNINGS
 

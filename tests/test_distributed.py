@@ -15,6 +15,7 @@ from pathlib import Path
 import torch
 import torch.distributed as dist
 import torch.multiprocessing as mp
+
 from nerfstudio.pipelines import base_pipeline
 
 from test_training import lite_config, write_learnable_dataset

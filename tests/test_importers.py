@@ -17,19 +17,6 @@ import numpy as np
 import pytest
 import torch
 from PIL import Image
-from source_layouts import (
-    HEIGHT,
-    LANDMARK,
-    LLFF_LABEL_IDS,
-    LLFF_NORMAL,
-    REPLICA_CLASSES,
-    WIDTH,
-    SourceFixture,
-    replica_semantics,
-    write_paper_llff,
-    write_semantic_nerf,
-)
-from test_training import lite_config, train
 
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.importers import (
@@ -44,6 +31,20 @@ from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.labels.label_dataset import LabelDatasetConfig, label_dataset
 from ssnerf_method.scene.make_scene import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.scripts.import_data import main
+
+from source_layouts import (
+    HEIGHT,
+    LANDMARK,
+    LLFF_LABEL_IDS,
+    LLFF_NORMAL,
+    REPLICA_CLASSES,
+    WIDTH,
+    SourceFixture,
+    replica_semantics,
+    write_paper_llff,
+    write_semantic_nerf,
+)
+from test_training import lite_config, train
 
 NYU = {name: index for index, name in enumerate(SEMANTIC_CLASSES)}
 

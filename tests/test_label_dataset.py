@@ -313,7 +313,8 @@ def test_read_only_dataset_suggests_output_elsewhere(scene: Path, tmp_path: Path
         raise PermissionError(13, "Permission denied", str(dir))
 
     monkeypatch.setattr(io.tempfile, "mkdtemp", refuse)
-    with pytest.raises(DatasetInputError, match=f"{data}: cannot write there.*--output /writable/folder/transforms.json"):
+    expected = f"{data}: cannot write there.*--output /writable/folder/transforms.json"
+    with pytest.raises(DatasetInputError, match=expected):
         run(data)
     assert snapshot(data) == before
 

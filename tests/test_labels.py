@@ -10,10 +10,15 @@ import numpy as np
 import pytest
 
 from ssnerf_method.data.transforms import Transforms, camera_rays, frame_camera
-from ssnerf_method.labels import camera_ray_directions, canny_edges, keypoint_heatmap, lambertian_shading
-from ssnerf_method.labels.keypoints import keypoint_label, keypoint_response_map
-from ssnerf_method.labels import normals_from_depth, normals_from_points
-from ssnerf_method.labels.keypoints import detect_keypoints
+from ssnerf_method.labels import (
+    camera_ray_directions,
+    canny_edges,
+    keypoint_heatmap,
+    lambertian_shading,
+    normals_from_depth,
+    normals_from_points,
+)
+from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_label, keypoint_response_map
 from ssnerf_method.labels.surf import local_max_3x3x3
 
 WIDTH, HEIGHT, FOCAL = 96, 72, 80.0

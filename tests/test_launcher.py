@@ -87,7 +87,7 @@ def test_ray_quick_benchmark_matches_the_local_one_and_a_rerun_trains_nothing(tm
     assert {scene: set(rows) for scene, rows in ours["results"].items()} == {
         scene: set(rows) for scene, rows in local_results.items()}
     report = (distributed / "report.md").read_text()
-    assert "Failed runs" not in report and report.count("| SS-NeRF (seed_") == 2
+    assert "Failed runs" not in report and report.count("| SS-NeRF (walkthrough_seed_") == 2
     logs = list((distributed / "runs").rglob("launcher.log"))
     assert len(logs) == 14 and all("attempt 1 on" in log.read_text() for log in logs)
 
@@ -121,7 +121,7 @@ def kill_attempt(record: Path, attempt: int, process: subprocess.Popen, timeout:
 def test_a_killed_task_is_retried_then_reported_failed_and_the_rerun_trains_only_it(tmp_path: Path) -> None:
     output = tmp_path / "ray"
     arguments = ("--properties", "semantics", "--no-all-properties-model", "--retries", "1")
-    victim = output / "runs" / "seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "30-steps"
+    victim = output / "runs" / "walkthrough_seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "30-steps"
     process = driver(output, *arguments)
     kill_attempt(victim / "launcher.log.running", 1, process)  # retried: --retries 1
     kill_attempt(victim / "launcher.log.running", 2, process)  # past its retries: failed
@@ -133,12 +133,12 @@ def test_a_killed_task_is_retried_then_reported_failed_and_the_rerun_trains_only
     record = json.loads((victim / "launcher.log.failed.json").read_text())
     assert record["log"] == str(victim / "launcher.log") and "Worker" in record["error"]
     report = (output / "report.md").read_text()
-    assert "## Failed runs" in report and f"seed_0 / ssnerf-semantics: {record['error']}" in report
+    assert "## Failed runs" in report and f"walkthrough_seed_0 / ssnerf-semantics: {record['error']}" in report
     assert str(victim / "launcher.log") in report
     others = sorted(set((output / "runs").rglob("metrics.json")))
     assert len(others) == 3 and not (victim / "metrics.json").exists()  # the other three models are kept
     kept = {path: path.stat().st_mtime_ns for path in others}
-    baselines = sorted((output / "runs").glob("seed_*/*-30-steps.json"))
+    baselines = sorted((output / "runs").glob("walkthrough_seed_*/*-30-steps.json"))
     assert len(baselines) == 4  # both baselines of both scenes (they need only the NeRF)
 
     text = finished(driver(output, *arguments))

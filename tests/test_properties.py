@@ -33,7 +33,8 @@ from ssnerf_method.rendering.weights import volume_weights
 NUM_CLASSES = 4
 NUM_RAYS = 5
 NUM_SAMPLES = 6
-SUBSETS = [subset for size in range(len(OPTIONAL_PROPERTIES) + 1) for subset in itertools.combinations(OPTIONAL_PROPERTIES, size)]
+SUBSETS = [subset for size in range(len(OPTIONAL_PROPERTIES) + 1)
+           for subset in itertools.combinations(OPTIONAL_PROPERTIES, size)]
 
 
 def _rotation_z(angle: float) -> torch.Tensor:
@@ -120,7 +121,8 @@ def test_registry_field_renderer_shapes(subset) -> None:
             channels = spec.kind.head_channels(NUM_CLASSES)
             assert values.shape == (NUM_RAYS, NUM_SAMPLES, channels), spec.name
             assert torch.isfinite(values).all()
-            if isinstance(spec.kind, ColorKind) or (isinstance(spec.kind, ScalarKind) and spec.kind.activation_name == "sigmoid"):
+            sigmoid = isinstance(spec.kind, ScalarKind) and spec.kind.activation_name == "sigmoid"
+            if isinstance(spec.kind, ColorKind) or sigmoid:
                 assert ((values >= 0) & (values <= 1)).all(), spec.name
             if isinstance(spec.kind, ScalarKind) and spec.kind.activation_name == "relu":
                 assert (values >= 0).all()
@@ -199,7 +201,8 @@ def test_pose_conditioned_field_reads_the_pose_and_defaults_to_identity() -> Non
     # without pose conditioning the metadata is not needed
     plain = make_field(resolve_properties(["semantics", "normals"]))
     with torch.no_grad():
-        assert set(plain(make_samples(make_bundle(pose=False)))) == {FieldHeadNames.DENSITY, "rgb", "semantics", "normals"}
+        outputs = plain(make_samples(make_bundle(pose=False)))
+        assert set(outputs) == {FieldHeadNames.DENSITY, "rgb", "semantics", "normals"}
 
 
 def test_positional_encoder_field_runs() -> None:

@@ -38,7 +38,9 @@ def scene(tmp_path_factory) -> Tuple[Path, Dict]:
 def _read(root: Path, relative: str) -> np.ndarray:
     image = cv2.imread(str(root / relative), cv2.IMREAD_UNCHANGED)
     assert image is not None, relative
-    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB) if image.ndim == 3 else image
+    if image.ndim == 2:
+        return image
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB if image.shape[2] == 3 else cv2.COLOR_BGRA2RGBA)
 
 
 def _intrinsics(meta: Dict) -> Tuple[float, float, float, float]:
@@ -242,3 +244,48 @@ def test_pose_projects_known_points_onto_matching_depth(scene):
             assert _read(root, frame["semantics_file_path"])[row, col] == primitive.semantic_id
             checked += 1
     assert checked >= 2
+
+
+def test_walkthrough_is_as_sparse_as_the_paper_split_and_stays_in_the_room() -> None:
+    from ssnerf_method.data.spacing import pose_spacing
+    from ssnerf_method.scene.make_scene import camera_path
+
+    config = MakeSceneConfig(Path("unused"), trajectory="walkthrough")
+    assert (config.num_frames, config.test_every, config.test_offset) == (50, 8, 0)  # the authors' llffhold = 8
+    poses = np.stack(camera_path("walkthrough", 50, 0))
+    held_out = np.arange(50) % 8 == 0
+    assert held_out.sum() == 7
+    walk = pose_spacing(poses[~held_out], poses[held_out])
+    loop_poses = np.stack(camera_path("loop", 60, 0))
+    loop_held_out = np.arange(60) % 5 == 2
+    loop = pose_spacing(loop_poses[~loop_held_out], loop_poses[loop_held_out])
+    assert walk["median_m"] > 3 * loop["median_m"] and walk["median_deg"] > loop["median_deg"]
+    centres = poses[:, :3, 3]
+    assert np.all(np.abs(centres[:, 0]) < 2.8) and np.all(np.abs(centres[:, 2]) < 2.3)  # clear of the walls
+    assert centres[:, 1].min() > 1.15 and np.ptp(centres[:, 1]) > 0.3  # above the low furniture, varying height
+    steps = np.linalg.norm(np.diff(centres, axis=0), axis=1)
+    assert steps.max() < 2 * np.median(steps)  # evenly spaced along the walk: no jumps
+    assert not np.array_equal(poses, np.stack(camera_path("walkthrough", 50, 1)))  # the seed moves the walk
+
+
+def test_normals_from_depth_label_matches_the_geometry_and_leaves_discontinuities_unlabelled(tmp_path: Path) -> None:
+    exact_root = _generate(tmp_path / "exact", trajectory="walkthrough").parent
+    derived_root = _generate(tmp_path / "derived", trajectory="walkthrough", normals="from-depth").parent
+    meta = json.loads((derived_root / "transforms.json").read_text())
+    assert "finite differences of the written depth map" in meta["ssnerf_scene"]["normals"]
+    angles, unlabelled = [], []
+    for frame in meta["frames"]:
+        derived = _read(derived_root, frame["normals_file_path"])
+        assert derived.shape == (HEIGHT, WIDTH, 4)  # alpha: which pixels are labelled
+        exact = _decode_normals(_read(exact_root, frame["normals_file_path"]))
+        labelled = derived[..., 3] > 0
+        cosine = np.clip((_decode_normals(derived[..., :3]) * exact).sum(axis=-1), -1.0, 1.0)
+        angles.append(np.degrees(np.arccos(cosine[labelled])))
+        unlabelled.append(1.0 - labelled.mean())
+        assert (_read(exact_root, frame["depth_file_path"]) == _read(derived_root, frame["depth_file_path"])).all()
+    angles = np.concatenate(angles)
+    assert np.median(angles) < 2.0 and np.mean(angles > 20.0) < 0.2  # follow the surfaces; off at edges (48x36 px)
+    assert 0.0 < np.mean(unlabelled) < 0.2
+    from ssnerf_method.data.validate import validate_dataset
+
+    assert validate_dataset(derived_root).faults == []

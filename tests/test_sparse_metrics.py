@@ -79,7 +79,8 @@ def test_edge_split_f1_uses_one_threshold_for_all_views() -> None:
     metric = METRICS["edge"]
     assert metric(view_a, label, EVERYWHERE, 0)["f1"] == pytest.approx(1.0)
     assert metric(view_b, label, EVERYWHERE, 0)["f1"] == pytest.approx(1.0)
-    split = add_statistics(metric.statistics(view_a, label, EVERYWHERE, 0), metric.statistics(view_b, label, EVERYWHERE, 0))
+    split = add_statistics(metric.statistics(view_a, label, EVERYWHERE, 0),
+                           metric.statistics(view_b, label, EVERYWHERE, 0))
     assert metric.summarize(split)["f1"] < 0.99
 
 

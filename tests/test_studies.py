@@ -5,6 +5,7 @@ nothing."""
 from __future__ import annotations
 
 import json
+import time
 from pathlib import Path
 
 import numpy as np
@@ -17,8 +18,21 @@ from nerfstudio.utils.eval_utils import eval_setup
 from ssnerf_method.experiments import benchmark
 from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
+from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
 from ssnerf_method.experiments.transfer import TransferStudy
+
+
+def assert_planned(study, output: Path, since: float) -> None:
+    """What `--launcher ray` would have run before the report is exactly what the local run trained: every planned
+    job's result exists, and every model trained since `since` was planned (so none trains in the driver)."""
+    config = study.benchmark_config()
+    jobs = study.jobs(config, list(config.scenes) or benchmark.generated_scenes(config))
+    assert jobs and all(job.done for job in jobs)
+    trained = {path for path in (output / "runs").rglob("metrics.json") if path.stat().st_mtime >= since}
+    assert trained <= {job.result for job in jobs}
+    keys = [job.key for job in jobs]
+    assert all(key in keys[:index] for index, job in enumerate(jobs) for key in job.after)  # needs come first
 
 
 def test_run_names_follow_the_trained_set() -> None:
@@ -31,32 +45,39 @@ def test_run_names_follow_the_trained_set() -> None:
 def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypatch) -> None:
     torch.set_num_threads(1)
     output = tmp_path / "studies"
+    since = time.time()
     branches = run_study(BranchStudy(quick=True, output=output, properties=("semantics", "edges")))
-    assert set(branches) == {"seed_0", "seed_1"}
-    assert set(branches["seed_0"]) == {"ssnerf-semantics", "ssnerf-semantics-on-v", "ssnerf-edges",
+    assert_planned(BranchStudy(quick=True, output=output, properties=("semantics", "edges")), output, since)
+    assert set(branches) == {"walkthrough_seed_0", "walkthrough_seed_1"}
+    assert set(branches["walkthrough_seed_0"]) == {"ssnerf-semantics", "ssnerf-semantics-on-v", "ssnerf-edges",
                                        "ssnerf-edges-on-nv", "ssnerf-normals", "ssnerf-normals-pose"}
     report = json.loads((output / "study_branches.json").read_text())
     assert [row["row"] for row in report["tables"]["table3"]] == [
-        "F_dec^v (seed_0)", "F_dec^v (seed_1)", "F_dec^v (average)",
-        "F_dec^nv (seed_0)", "F_dec^nv (seed_1)", "F_dec^nv (average)"]
+        "F_dec^v (walkthrough_seed_0)", "F_dec^v (walkthrough_seed_1)", "F_dec^v (average)",
+        "F_dec^nv (walkthrough_seed_0)", "F_dec^nv (walkthrough_seed_1)", "F_dec^nv (average)"]
     assert all(row["semantics"] is not None and row["edges"] is not None for row in report["tables"]["table3"])
-    assert report["runs"]["seed_0"]["ssnerf-semantics-on-v"]["overrides"] == {"branches": {"semantics": "v"}}
-    edges = report["runs"]["seed_0"]["ssnerf-edges"]
+    runs = report["runs"]["walkthrough_seed_0"]
+    assert runs["ssnerf-semantics-on-v"]["overrides"] == {"branches": {"semantics": "v"}}
+    edges = report["runs"]["walkthrough_seed_0"]["ssnerf-edges"]
     assert report["commit"] and edges["seed"] == 42 and edges["train_seconds"] > 0
-    run = output / "runs" / "seed_0" / "ssnerf-edges" / "ssnerf-lite" / "30-steps"
+    run = output / "runs" / "walkthrough_seed_0" / "ssnerf-edges" / "ssnerf-lite" / "30-steps"
     assert Path(edges["config"]) == run / "config.yml"
     assert "| F_dec^nv (average) |" in (output / "study_branches.md").read_text()
     # the override reached the model: semantics is decoded by F_dec^v in that run
-    config = output / "runs" / "seed_0" / "ssnerf-semantics-on-v" / "ssnerf-lite" / "30-steps" / "config.yml"
+    config = output / "runs" / "walkthrough_seed_0" / "ssnerf-semantics-on-v" / "ssnerf-lite" / "30-steps"
+    config = config / "config.yml"
     _, pipeline, _, _ = eval_setup(config, test_mode="test")
     decoders = pipeline.model.sampling.field_module.decoders
     assert "semantics" in decoders["v"].names and "nv" not in decoders
 
+    since = time.time()
     rgb = run_study(RGBStudy(quick=True, output=output, properties=("semantics", "edges")))
-    assert {"nerf", "ssnerf-semantics-no-rgb", "ssnerf-edges-no-rgb"} <= set(rgb["seed_1"])
+    assert_planned(RGBStudy(quick=True, output=output, properties=("semantics", "edges")), output, since)
+    assert {"nerf", "ssnerf-semantics-no-rgb", "ssnerf-edges-no-rgb"} <= set(rgb["walkthrough_seed_1"])
     tables = json.loads((output / "study_rgb.json").read_text())["tables"]
-    assert [row["row"] for row in tables["table2_left"]] == ["seed_0", "seed_1", "average"]
-    assert [row["row"] for row in tables["table2_right"]][:2] == ["with RGB (seed_0)", "without RGB (seed_0)"]
+    assert [row["row"] for row in tables["table2_left"]] == ["walkthrough_seed_0", "walkthrough_seed_1", "average"]
+    assert [row["row"] for row in tables["table2_right"]][:2] == [
+        "with RGB (walkthrough_seed_0)", "without RGB (walkthrough_seed_0)"]
 
     calls = []
     monkeypatch.setattr(benchmark, "train_main", lambda config: calls.append(config))
@@ -65,8 +86,11 @@ def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypa
     monkeypatch.undo()
 
     torch.set_num_threads(1)
+    since = time.time()
     multitask = run_study(MultiTaskStudy(quick=True, output=output, target="edges", others=("semantics", "normals")))
-    assert set(multitask["seed_0"]) == {"ssnerf-edges", "ssnerf-semantics+edges", "ssnerf-normals+edges",
+    assert_planned(MultiTaskStudy(quick=True, output=output, target="edges", others=("semantics", "normals")), output,
+                   since)
+    assert set(multitask["walkthrough_seed_0"]) == {"ssnerf-edges", "ssnerf-semantics+edges", "ssnerf-normals+edges",
                                         "ssnerf-semantics+normals+edges"}
     table4 = json.loads((output / "study_multitask.json").read_text())["tables"]
     assert list(table4["table4"][0]) == ["row", "alone", "+SL", "+SN", "all"]
@@ -78,22 +102,26 @@ def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypa
 def test_quick_autolabel_scores_weak_labels_and_renders_on_clean_labels(tmp_path: Path) -> None:
     torch.set_num_threads(1)
     output = tmp_path / "autolabel"
-    results = AutoLabelStudy(quick=True, output=output, target="semantics", rates=(0.0, 0.4)).run()
-    assert set(results) == {"seed_0", "seed_1"} and set(results["seed_0"]) == {"0", "0.4"}
+    study = AutoLabelStudy(quick=True, output=output, target="semantics", rates=(0.0, 0.4))
+    results = study.run()
+    assert_planned(study, output, 0.0)
+    assert set(results) == {"walkthrough_seed_0", "walkthrough_seed_1"}
+    assert set(results["walkthrough_seed_0"]) == {"0", "0.4"}
     for scene in results.values():
         clean, weak = scene["0"], scene["0.4"]
         assert clean["weak labels, training views"] == 1.0 and clean["weak labels, test views"] == 1.0
         assert weak["weak labels, training views"] < 0.8  # 40% of the pixels relabelled
         assert 0.0 <= weak["SS-NeRF, test views"] <= 1.0
-    meta = json.loads((output / "weak" / "seed_0-semantics-0.4-pixels" / "transforms.json").read_text())
+    meta = json.loads((output / "weak" / "walkthrough_seed_0-semantics-0.4-pixels" / "transforms.json").read_text())
     assert meta["ssnerf_weak_labels"]["rate"] == 0.4
-    clean_root = output / "scenes" / "seed_0"
+    clean_root = output / "scenes" / "walkthrough_seed_0"
     frame = meta["frames"][0]["semantics_file_path"]
     clean_ids = np.asarray(Image.open(clean_root / frame))
-    weak_ids = np.asarray(Image.open(output / "weak" / "seed_0-semantics-0.4-pixels" / frame))
+    weak_ids = np.asarray(Image.open(output / "weak" / "walkthrough_seed_0-semantics-0.4-pixels" / frame))
     assert (clean_ids != weak_ids).mean() == pytest.approx(0.4, abs=0.01)  # the clean scene itself is untouched
     rows = json.loads((output / "study_autolabel.json").read_text())["tables"]["autolabel"]
-    assert [row["row"] for row in rows][:3] == ["rate 0 (seed_0)", "rate 0 (seed_1)", "rate 0 (average)"]
+    assert [row["row"] for row in rows][:3] == [
+        "rate 0 (walkthrough_seed_0)", "rate 0 (walkthrough_seed_1)", "rate 0 (average)"]
     assert (output / "figure_autolabel_semantics.png").is_file()
 
 
@@ -101,39 +129,52 @@ def test_quick_autolabel_scores_weak_labels_and_renders_on_clean_labels(tmp_path
 def test_quick_transfer_trains_the_target_on_k_views_from_each_source(tmp_path: Path) -> None:
     torch.set_num_threads(1)
     output = tmp_path / "transfer"
-    results = TransferStudy(quick=True, output=output, target="shading", sources=("semantics",), views=3).run()
-    assert set(results) == {"seed_0", "seed_1"} and set(results["seed_0"]) == {"Limited Views", "SL → SH"}
+    study = TransferStudy(quick=True, output=output, target="shading", sources=("semantics",), views=3)
+    results = study.run()
+    assert_planned(study, output, 0.0)
+    planned = {job.key: job for job in study.jobs(study.benchmark_config(), benchmark.generated_scenes(
+        study.benchmark_config()))}
+    assert planned["walkthrough_seed_0-3views/ssnerf-shading-from-semantics/ssnerf-lite/30-steps"].after == (
+        "walkthrough_seed_0/ssnerf-semantics/ssnerf-lite/30-steps",)  # a transferred target waits for its source
+    assert set(results) == {"walkthrough_seed_0", "walkthrough_seed_1"}
+    assert set(results["walkthrough_seed_0"]) == {"Limited Views", "SL → SH"}
     report = json.loads((output / "study_transfer.json").read_text())
     rows = report["tables"]["table5"]
     assert [row["row"] for row in rows] == ["Limited Views", "SL → SH"]
-    assert all(row[column] is not None for row in rows for column in ("seed_0", "seed_1", "average"))
-    views = report["tables"]["train_views"]["seed_0"]
+    assert all(row[column] is not None for row in rows
+               for column in ("walkthrough_seed_0", "walkthrough_seed_1", "average"))
+    views = report["tables"]["train_views"]["walkthrough_seed_0"]
     assert len(views) == 3 and all(name in (output / "study_transfer.md").read_text() for name in views)
     # the transferred run trained on the k views and started from the source model's final checkpoint
-    run = output / "runs" / "seed_0-3views" / "ssnerf-shading-from-semantics" / "ssnerf-lite" / "30-steps"
+    run = output / "runs" / "walkthrough_seed_0-3views" / "ssnerf-shading-from-semantics" / "ssnerf-lite" / "30-steps"
     run = run / "config.yml"
     _, pipeline, _, _ = eval_setup(run, test_mode="test")
-    source = output / "runs" / "seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "30-steps" / "nerfstudio_models"
+    source = output / "runs" / "walkthrough_seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "30-steps"
+    source = source / "nerfstudio_models"
     assert pipeline.model.config.encoder_init == source / "step-000000029.ckpt"
     assert [Path(name).name for name in pipeline.datamanager.train_dataset.image_filenames] == [
         Path(name).name for name in views]
-    assert report["runs"]["seed_0"]["SL → SH"]["source_run"] == "ssnerf-semantics"
-    assert (output / "figure_transfer_seed_0.png").is_file()
+    assert report["runs"]["walkthrough_seed_0"]["SL → SH"]["source_run"] == "ssnerf-semantics"
+    assert (output / "figure_transfer_walkthrough_seed_0.png").is_file()
 
 
 @pytest.mark.filterwarnings("ignore")
 def test_quick_augmentation_trains_task_networks_on_ground_truth_and_renders(tmp_path: Path) -> None:
     torch.set_num_threads(1)
     output = tmp_path / "augmentation"
-    results = AugmentationStudy(quick=True, output=output, properties=("semantics", "normals")).run()
-    assert set(results) == {"seed_0", "seed_1"} and set(results["seed_0"]) == set(SETTINGS)
+    study = AugmentationStudy(quick=True, output=output, properties=("semantics", "normals"))
+    results = study.run()
+    assert_planned(study, output, 0.0)
+    assert set(results) == {"walkthrough_seed_0", "walkthrough_seed_1"}
+    assert set(results["walkthrough_seed_0"]) == set(SETTINGS)
     assert all(0.0 <= results[scene][setting]["semantics"] <= 1.0 for scene in results for setting in SETTINGS)
     report = json.loads((output / "study_augmentation.json").read_text())
     assert [row["row"] for row in report["tables"]["table6"]] == list(SETTINGS)
-    renders = output / "augmentation" / "ssnerf-lite" / "30-steps" / "renders" / "seed_0"
+    renders = output / "augmentation" / "ssnerf-lite" / "30-steps" / "renders" / "walkthrough_seed_0"
     same = json.loads((renders / "normals-training-poses" / "transforms.json").read_text())
     novel = json.loads((renders / "normals-novel-poses" / "transforms.json").read_text())
-    train = len(json.loads((output / "scenes" / "seed_0" / "transforms.json").read_text())["train_filenames"])
+    scene = output / "scenes" / "walkthrough_seed_0"
+    train = len(json.loads((scene / "transforms.json").read_text())["train_filenames"])
     assert len(same["frames"]) == train and len(novel["frames"]) == train - 1
     assert novel["frames"][0]["ssnerf_source"]["fraction"] == 0.5
     networks = report["runs"]["task_networks"]
@@ -143,3 +184,29 @@ def test_quick_augmentation_trains_task_networks_on_ground_truth_and_renders(tmp
     assert networks["normals: GT + SS-NeRF"]["training_images"] == 2 * ground_truth
     assert networks["normals: GT + SS-NeRF-N"]["training_images"] == ground_truth + 2 * (train - 1)
     assert (output / "figure_augmentation.png").is_file()
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_quick_sparsity_scores_each_method_against_the_number_of_views(tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    output = tmp_path / "sparsity"
+    study = SparsityStudy(quick=True, output=output, properties=("semantics", "normals"))
+    results = study.run()
+    assert set(results) == {"walkthrough_dense_seed_0-6views", "walkthrough_dense_seed_0-3views"}
+    assert set(results["walkthrough_dense_seed_0-3views"]) == {
+        "nerf", "ssnerf-semantics", "ssnerf-normals", "heuristic", "hybrid"}
+    assert_planned(study, output, 0.0)
+    tables = json.loads((output / "study_sparsity.json").read_text())["tables"]["sparsity"]
+    rows = tables["normals"]
+    assert [row["row"] for row in rows] == ["6 views", "3 views"]
+    assert all(row[f"{method} normals"] is not None for row in rows for method in ("SS-NeRF", "Heuristic", "Hybrid"))
+    assert rows[1]["Heuristic normals"] == results["walkthrough_dense_seed_0-3views"]["heuristic"]["normals_l1"]
+    # fewer views sit further from the test views (the test views are the same)
+    assert rows[1]["median distance (m)"] > rows[0]["median distance (m)"] > 0
+    for k in (3, 6):
+        meta = json.loads((output / "limited" / f"walkthrough_dense_seed_0-{k}views" / "transforms.json").read_text())
+        assert len(meta["train_filenames"]) == k and len(meta["test_filenames"]) == 2
+    text = (output / "study_sparsity.md").read_text()
+    assert "| 3 views |" in text and "SN l1" in text
+    figure = np.asarray(Image.open(output / "figure_sparsity.png"))
+    assert figure.std() > 10

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ssnerf_method.labels.surf import detect_surf, integral_image, box_sum, octave_sizes
+from ssnerf_method.labels.surf import box_sum, detect_surf, integral_image, octave_sizes
 
 BLOBS = [(60.0, 50.0, 3.0), (150.0, 60.0, 5.0), (110.0, 150.0, 8.0)]  # x, y, sigma
 

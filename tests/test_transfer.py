@@ -14,6 +14,7 @@ from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCall
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.experiments.transfer import evenly_spaced, make_limited_dataset
 from ssnerf_method.model.encoder_transfer import EncoderTransferError
+
 from test_rendering import tiny_model
 
 

@@ -83,7 +83,8 @@ FAULTS: Dict[str, tuple] = {
     "class id outside semantic_classes": (bad_class, None, [f"semantics/{FRAME}", "200", "semantic_classes"]),
     "label path is a folder": (lambda root: replace_with_folder(root / "edges" / FRAME), None,
                                [f"edges/{FRAME}", "is a folder"]),
-    "missing label": (lambda root: (root / "keypoints" / FRAME).unlink(), None, [f"keypoints/{FRAME}", "does not exist"]),
+    "missing label": (lambda root: (root / "keypoints" / FRAME).unlink(), None,
+                      [f"keypoints/{FRAME}", "does not exist"]),
     "no transforms.json": (lambda root: (root / "transforms.json").unlink(), None, ["transforms.json", "missing"]),
     "wrong folder": (lambda root: None, "nope", ["nope"]),
 }
@@ -205,6 +206,7 @@ def test_headers_only_skips_pixel_checks(tiny_dataset: Path) -> None:
 def test_non_finite_loss_stops_training_at_that_step(tmp_path: Path, monkeypatch) -> None:
     from ssnerf_method.evaluation.pipeline import TrainingDiverged
     from ssnerf_method.model.ssnerf_model import SSNeRFModel
+
     from test_training import lite_config, train
 
     original = SSNeRFModel.get_loss_dict

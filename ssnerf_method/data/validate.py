@@ -361,7 +361,8 @@ def _check_depth(path: Path, size: Optional[Tuple[int, int]], contents: bool) ->
         except (OSError, ValueError) as err:
             return f"{path}: depth .npy cannot be read ({err}). Re-export it."
         if array.dtype.kind not in "fiu" or not (array.ndim == 2 or (array.ndim == 3 and array.shape[2] == 1)):
-            return f"{path}: depth .npy must be an (H, W) array of numbers, got {array.shape} {array.dtype}. Re-export it."
+            return (f"{path}: depth .npy must be an (H, W) array of numbers, got {array.shape} {array.dtype}. "
+                    "Re-export it.")
         found = (array.shape[1], array.shape[0])
     else:
         header, fault = _header(path, "depth map", "depth_file_path")
@@ -372,7 +373,8 @@ def _check_depth(path: Path, size: Optional[Tuple[int, int]], contents: bool) ->
             return (f"{path}: depth map is a {mode} image; nerfstudio reads depth from a single-channel 16-bit PNG "
                     "(z-depth in millimetres) or a .npy. Point depth_file_path at the depth, or re-export it.")
     if size is not None and abs(found[0] / size[0] - found[1] / size[1]) > 0.02 * found[0] / size[0]:
-        return (f"{path}: depth map is {found[0]}x{found[1]}, not the aspect ratio of its camera ({size[0]}x{size[1]}). "
+        return (f"{path}: depth map is {found[0]}x{found[1]}, not the aspect ratio of its camera "
+                f"({size[0]}x{size[1]}). "
                 "Point depth_file_path at this frame's depth, or resize it.")
     if contents:
         values = np.load(path) if path.suffix == ".npy" else cv2.imread(str(path), cv2.IMREAD_ANYDEPTH)
@@ -386,7 +388,8 @@ def depth_fault(path: Path, depth: np.ndarray) -> Optional[str]:
     """The fault of a decoded depth map that has no valid value at all (the dataset checks it as it loads depth)."""
     if (np.isfinite(depth) & (depth > 0)).any():
         return None
-    return (f"{path}: depth is zero (or invalid) everywhere. Point depth_file_path at this frame's depth, or remove the "
+    return (f"{path}: depth is zero (or invalid) everywhere. Point depth_file_path at this frame's depth, or remove "
+            "the "
             "key from every frame.")
 
 

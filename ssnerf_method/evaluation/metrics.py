@@ -216,7 +216,7 @@ def local_maxima(values: Float[Tensor, "h w"], valid: Bool[Tensor, "h w"], floor
     return positions, values[peaks]
 
 
-def match_keypoints(predicted: Tensor, scores: Tensor, truth: Tensor, tolerance: float) -> Bool[Tensor, "n"]:
+def match_keypoints(predicted: Tensor, scores: Tensor, truth: Tensor, tolerance: float) -> Bool[Tensor, " n"]:
     """Greedy matching in descending score: each predicted peak takes the nearest still unmatched true keypoint
     within `tolerance` pixels. Returns, per prediction, whether it is a hit. Because stronger peaks choose first,
     the hits among the peaks above any threshold are those that matching only them would give."""

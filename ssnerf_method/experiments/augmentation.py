@@ -29,10 +29,10 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.export_dataset import ExportDatasetConfig, export_dataset
+from ssnerf_method.errors import UserError
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
-from ssnerf_method.errors import UserError
 from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, generated_scenes, run_tag
 from ssnerf_method.experiments.launcher import launch
 from ssnerf_method.experiments.report import average, columns_of, property_columns, property_table

@@ -14,7 +14,7 @@ import shutil
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, Literal, Tuple
+from typing import Any, Dict, List, Literal, Tuple
 
 import numpy as np
 from PIL import Image
@@ -24,15 +24,16 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder, encode_png
-from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
+from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, SceneBenchmark, generated_scenes
-from ssnerf_method.experiments.launcher import launch
+from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import Column, average, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
 from ssnerf_method.properties import REGISTRY, PropertySpec
 from ssnerf_method.rendering.palette import semantic_palette
+
 
 def suffix(measure: Column) -> str:
     """What a score's name adds for a measure beside the headline (the headline's keep their plain names)."""
@@ -98,8 +99,7 @@ class AutoLabelStudy(StudyConfig):
         clean_scenes = list(config.scenes) or generated_scenes(config)
         results: Results = {}
         run = ModelRun(single(self.target), (self.target,))
-        launch(config, [self.weak_benchmark(config, clean, rate).job(run)
-                        for clean in clean_scenes for rate in self.chosen_rates()])
+        launch(config, self.jobs(config, clean_scenes))
         for clean in clean_scenes:
             for rate in self.chosen_rates():
                 bench = self.weak_benchmark(config, clean, rate)
@@ -114,6 +114,11 @@ class AutoLabelStudy(StudyConfig):
                         for rate, values in by_rate.items()} for scene, by_rate in results.items()}
         write_study_report(self, results, runs, time.time() - start)
         return results
+
+    def jobs(self, config: BenchmarkConfig, scenes: List[Path]) -> List[Job]:
+        """The target's SS-NeRF on every weak copy (made here, before the launcher runs them)."""
+        run = ModelRun(single(self.target), (self.target,))
+        return [self.weak_benchmark(config, clean, rate).job(run) for clean in scenes for rate in self.chosen_rates()]
 
     def weak_benchmark(self, config: BenchmarkConfig, clean: Path, rate: float) -> SceneBenchmark:
         """The weak copy of `clean` at `rate` (made once) and its benchmark."""
@@ -153,7 +158,8 @@ class AutoLabelStudy(StudyConfig):
         measures = property_columns(spec.name)
         if cache.is_file():
             cached = json.loads(cache.read_text())
-            if all(f"{COLUMNS[0]}{suffix(measure)}" in cached for measure in measures):  # else cached by an older version
+            # else cached by an older version
+            if all(f"{COLUMNS[0]}{suffix(measure)}" in cached for measure in measures):
                 return cached
         model = bench.load(run.name).model
         scores: Dict[str, Any] = {}

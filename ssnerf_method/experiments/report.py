@@ -135,8 +135,21 @@ def failures(results: Dict[str, Dict[str, Dict]]) -> str:
         if lines else ""
 
 
+def spacing_table(spacing: Dict[str, Dict]) -> str:
+    """Per scene, the median distance and angle from a test view to its nearest training view (and, for a generated
+    scene, the same for the demo's loop scene of its seed)."""
+    lines = ["| scene | test views | median distance to the nearest training view | median angle | "
+             "the loop scene of the same seed |", "|---|---|---|---|---|"]
+    for scene, values in spacing.items():
+        loop = values.get("loop")
+        beside = f"{loop['median_m']:.2f} m, {loop['median_deg']:.1f}°" if loop else "–"
+        lines.append(f"| {scene} | {values['test_views']} | {values['median_m']:.2f} m | {values['median_deg']:.1f}° | "
+                     f"{beside} |")
+    return "\n".join(lines)
+
+
 def write_report(output: Path, results: Results, properties: Sequence[str], method: str, steps: int,
-                 lr_drop: Optional[float] = None) -> Path:
+                 lr_drop: Optional[float] = None, spacing: Optional[Dict[str, Dict]] = None) -> Path:
     """Write `report.md` and `tables.json` into `output`; returns the report's path."""
     first = table1(results, properties)
     second = table2(results, properties)
@@ -146,10 +159,12 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
         + (f" (not on {', '.join(name for name, ok in won.items() if not ok)})" if not all(won.values()) else "")
         for baseline, won in verdicts.items() if won
     )
-    report = "\n\n".join([
+    report = "\n\n".join(part for part in [
         f"# SS-NeRF benchmark ({training_words(method, steps, lr_drop)})",
         f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them "
         "(mIoU from the accumulated confusion matrix, L1 over all labelled pixels).",
+        ("How far the test views are from the training views (nearest by centre distance + 0.5 m per radian, as the "
+         "Heuristic ranks them):\n\n" + spacing_table(spacing)) if spacing else "",
         "## Table 1: scene properties",
         property_table(first, properties),
         f"SS-NeRF (average) {summary}." if summary else "",
@@ -158,10 +173,11 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
                  ["NeRF", *(f"SS-NeRF-{REGISTRY[name].short}" for name in properties)], 2),
         "Figures: " + ", ".join(f"`figure_{scene}.png`" for scene in results),
         failures(results),
-    ])
+    ] if part)
     path = output / "report.md"
     path.write_text(report + "\n")
-    tables = {"method": method, "steps": steps, "lr_drop": lr_drop, "table1": first, "table2_left": second,
+    tables = {"method": method, "steps": steps, "lr_drop": lr_drop, "spacing": spacing, "table1": first,
+              "table2_left": second,
               "beats": verdicts, "results": results}
     (output / "tables.json").write_text(json.dumps(tables, indent=2))
     return path

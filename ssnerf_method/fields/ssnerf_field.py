@@ -61,7 +61,8 @@ class PropertyDecoders(nn.Module):
         super().__init__()
         self.names = list(head_channels)
         self.decoders = nn.ModuleDict(
-            {name: BranchDecoder(in_dim, width, num_layers, {name: channels}) for name, channels in head_channels.items()}
+            {name: BranchDecoder(in_dim, width, num_layers, {name: channels})
+             for name, channels in head_channels.items()}
         )
 
     def forward(self, inputs: Float[Tensor, "*bs in_dim"]) -> Dict[str, Tensor]:
@@ -145,7 +146,8 @@ class SSNeRFField(Field):
         if branch == "v":
             directions = ray_samples.frustums.directions
             if getattr(self.direction_encoding, "tcnn_encoding", None) is not None:
-                directions = get_normalized_directions(directions)  # tcnn's SH takes [0, 1]; the torch path unit vectors
+                # tcnn's SH takes [0, 1]; the torch path unit vectors
+                directions = get_normalized_directions(directions)
             inputs.append(self.direction_encoding(directions))
         elif self.pose_encoding is not None:
             if ray_samples.metadata is not None and POSE_METADATA_KEY in ray_samples.metadata:

@@ -20,8 +20,8 @@ from __future__ import annotations
 import os
 import threading
 from collections import Counter
-from copy import deepcopy
 from concurrent.futures import ThreadPoolExecutor
+from copy import deepcopy
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
 from typing import Callable, Dict, List, Optional, Tuple
@@ -130,7 +130,8 @@ def label_edges(context: FrameContext) -> np.ndarray:
 
 def label_keypoints(context: FrameContext) -> np.ndarray:
     config = context.config
-    return _to_uint8(keypoint_label(context.rgb, config.keypoint_label, config.keypoint_sigma, config.keypoint_detector))
+    return _to_uint8(keypoint_label(context.rgb, config.keypoint_label, config.keypoint_sigma,
+                                    config.keypoint_detector))
 
 
 def read_depth(path: Path) -> np.ndarray:
@@ -375,7 +376,8 @@ def rebase_paths(meta: Dict, source: Path, target: Path) -> Dict:
     def moved(value: str) -> str:
         return os.path.relpath(source / value, target)
 
-    keys = ["file_path", "depth_file_path", "mask_path", *[spec.file_key for spec in REGISTRY.values() if spec.file_key]]
+    keys = ["file_path", "depth_file_path", "mask_path",
+            *[spec.file_key for spec in REGISTRY.values() if spec.file_key]]
     frames = [{key: moved(value) if key in keys and isinstance(value, str) else value for key, value in frame.items()}
               for frame in meta["frames"]]
     splits = {key: [moved(value) for value in meta[key]] for key in SPLIT_KEYS if key in meta}

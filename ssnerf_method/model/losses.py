@@ -17,14 +17,18 @@ def _masked(prediction: Tensor, label: Tensor, valid: Tensor) -> tuple[Tensor, T
     return prediction[valid], label[valid]
 
 
-def mse_loss(prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"], valid: Bool[Tensor, "rays"]) -> Tensor:
+def mse_loss(
+    prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"], valid: Bool[Tensor, " rays"]
+) -> Tensor:
     """Mean squared error (RGB, normals)."""
     if not valid.any():
         return prediction.sum() * 0.0
     return F.mse_loss(*_masked(prediction, label, valid))
 
 
-def l1_loss(prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"], valid: Bool[Tensor, "rays"]) -> Tensor:
+def l1_loss(
+    prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"], valid: Bool[Tensor, " rays"]
+) -> Tensor:
     """Mean absolute error (shading, keypoints, edges)."""
     if not valid.any():
         return prediction.sum() * 0.0
@@ -32,7 +36,7 @@ def l1_loss(prediction: Float[Tensor, "rays c"], label: Float[Tensor, "rays c"],
 
 
 def cross_entropy_loss(
-    logits: Float[Tensor, "rays classes"], label: Float[Tensor, "rays 1"], valid: Bool[Tensor, "rays"]
+    logits: Float[Tensor, "rays classes"], label: Float[Tensor, "rays 1"], valid: Bool[Tensor, " rays"]
 ) -> Tensor:
     """Cross-entropy of the softmax of volume-rendered logits against class ids (semantics)."""
     if not valid.any():

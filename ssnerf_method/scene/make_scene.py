@@ -1,9 +1,14 @@
 """`ssnerf-make-scene OUT_DIR`: render the embedded default SS-NeRF scene as a nerfstudio dataset with property labels.
 
-A camera walks a smooth closed loop inside the procedural room (`room.py`), looking outwards and around with slight
-tilts. Each frame gets an anti-aliased RGB image (2x2 supersampling) and, at pixel centres, z-depth, semantics and
-camera-frame normals from the ray caster; shading, keypoint and edge labels come from `ssnerf_method.labels` (shading
-from the true normals, keypoints and edges from the written 8-bit RGB). Output is deterministic for a seed.
+A camera moves through the procedural room (`room.py`) along one of two trajectories: `loop`, a small closed loop in
+the middle of the room looking outwards (the demo's: dense, 60 frames, every 5th held out), or `walkthrough`, a long
+hand-held-like walk across the room past the furniture, with varying height, pitch and heading, sampled as sparsely
+as the paper's Replica scenes (50 frames, every 8th held out from frame 0: the authors' `llffhold = 8`). Each frame
+gets an anti-aliased RGB image (2x2 supersampling) and, at pixel centres, z-depth, semantics and camera-frame normals
+from the ray caster; the normal label is either those exact normals or, as the paper made it, derived from the
+written depth map by finite differences (`--normals from-depth`, `ssnerf-label`'s code); shading, keypoint and edge
+labels come from `ssnerf_method.labels` (shading from the true normals, keypoints and edges from the written 8-bit
+RGB). Output is deterministic for a seed.
 """
 
 from __future__ import annotations
@@ -14,7 +19,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List
+from typing import Dict, List, Literal, Optional
 
 import cv2
 import numpy as np
@@ -24,6 +29,7 @@ from ssnerf_method.data.camera_path import to_model_frame, write_camera_path
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.labels.edges import canny_edges
 from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
+from ssnerf_method.labels.normals import normals_from_depth
 from ssnerf_method.labels.shading import lambertian_shading
 from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import SEMANTIC_CLASSES, SEMANTIC_COLORS, Room, build_room
@@ -42,6 +48,17 @@ KEYPOINT_SIGMA = 1.5
 KEYPOINT_DETECTOR: Detector = "sift"
 """With `--keypoint-label blobs`: OpenCV's SIFT (the scenes' detector before the response map became the default)."""
 
+Trajectory = Literal["loop", "walkthrough"]
+NormalsLabel = Literal["exact", "from-depth"]
+
+SPLITS: Dict[str, Dict[str, int]] = {
+    "loop": {"num_frames": 60, "test_every": 5, "test_offset": 2},
+    "walkthrough": {"num_frames": 50, "test_every": 8, "test_offset": 0},
+}
+"""Each trajectory's default frame count and held-out frames (frame i is a test frame when
+i % test_every == test_offset): the loop's every 5th from frame 2; the walkthrough's every 8th from frame 0, as the
+paper's released scenes (50 frames, `llffhold = 8`)."""
+
 LABEL_DIRS = ("images", "depth", "semantics", "normals", "shading", "keypoints", "edges")
 """Sub-folders written per frame; `images` holds RGB, the others the label of the same name."""
 
@@ -56,12 +73,13 @@ class MakeSceneConfig:
     """Image width in pixels."""
     height: int = 96
     """Image height in pixels."""
-    num_frames: int = 60
-    """Number of frames along the closed camera loop."""
+    num_frames: Optional[int] = None
+    """Number of frames along the trajectory (default: 60 for the loop, 50 for the walkthrough)."""
     seed: int = 0
-    """Seed of the camera loop's phase/shape and of the colour jitter (same seed, same bytes)."""
-    test_every: int = 5
-    """Frame i is a test (and val) frame when i % test_every == test_every // 2."""
+    """Seed of the trajectory's shape and of the colour jitter (same seed, same bytes)."""
+    test_every: Optional[int] = None
+    """Frame i is a test (and val) frame when i % test_every == test_offset (default: 5 for the loop, 8 for the
+    walkthrough)."""
     path_frames: int = 120
     """Frames of the fly-through along the same loop written to camera_paths/fly_through.json (for `ns-render
     camera-path` and the viewer's render panel); 0 writes none."""
@@ -72,6 +90,23 @@ class MakeSceneConfig:
     as Gaussians of `KEYPOINT_SIGMA` px (the scenes' label before 2026-12; fields render it empty)."""
     overwrite: bool = False
     """Replace the scene files (transforms.json and the label folders) of a non-empty output_dir."""
+    trajectory: Trajectory = "loop"
+    """`loop`: a small closed loop in the middle of the room, looking outwards (dense; the demo's). `walkthrough`: a
+    long walk across the room past the furniture, as sparse along the path as the paper's scenes (the benchmark's)."""
+    normals: NormalsLabel = "exact"
+    """Normal label: the ray caster's exact normals, or derived from the written depth map by finite differences as
+    the paper derived them (`from-depth`; pixels at depth discontinuities are left unlabelled)."""
+    test_offset: Optional[int] = None
+    """First test frame (default: 2 for the loop, 0 for the walkthrough, the authors' split)."""
+
+    def __post_init__(self) -> None:
+        defaults = SPLITS[self.trajectory]
+        self.num_frames = self.num_frames if self.num_frames is not None else defaults["num_frames"]
+        if self.test_every is None:
+            self.test_every = defaults["test_every"]
+            self.test_offset = defaults["test_offset"] if self.test_offset is None else self.test_offset
+        elif self.test_offset is None:
+            self.test_offset = self.test_every // 2 if self.trajectory == "loop" else 0
 
 
 @dataclass
@@ -105,7 +140,57 @@ def look_pose(position: np.ndarray, forward: np.ndarray) -> np.ndarray:
     return pose
 
 
-def camera_path(num_frames: int, seed: int) -> List[np.ndarray]:
+WALKTHROUGH_WAYPOINTS = np.array([
+    (2.5, 1.5), (2.4, 0.0), (1.6, -0.9), (0.5, -1.6), (-0.8, -1.9), (-2.0, -1.3), (-2.3, 0.0), (-1.9, 1.4),
+    (-0.7, 1.9), (0.6, 1.6), (1.3, 0.6), (0.4, -0.3), (-0.8, 0.3),
+])
+"""(x, z) in metres of the walk across the room: from the window corner past the bed, the shelf, the sofa, the TV and
+the table, ending in the middle. At the walk's heights (above 1.15 m) only the walls, wardrobe, shelf and plant
+stand in the way, and every waypoint keeps clear of them."""
+
+
+def camera_path(trajectory: Trajectory, num_frames: int, seed: int) -> List[np.ndarray]:
+    """Camera-to-world poses of `num_frames` frames along `trajectory` (see `loop_path`, `walkthrough_path`)."""
+    return (loop_path if trajectory == "loop" else walkthrough_path)(num_frames, seed)
+
+
+def walkthrough_path(num_frames: int, seed: int) -> List[np.ndarray]:
+    """Camera-to-world poses of a hand-held-like walk across the room, evenly spaced along its length (about 16 m).
+
+    A Catmull-Rom spline through `WALKTHROUGH_WAYPOINTS` (each moved by up to ~0.1 m per seed). The camera heads
+    where it walks, swinging up to ~40° left and right to look at the furniture it passes, with its height between
+    1.2 and 1.7 m and its pitch between about −25° and +5°, so consecutive frames are far apart in position and
+    angle and the furniture occludes parts of the room from some views.
+    """
+    rng = np.random.default_rng([seed, 2])
+    points = WALKTHROUGH_WAYPOINTS + np.clip(rng.normal(0.0, 0.06, WALKTHROUGH_WAYPOINTS.shape), -0.1, 0.1)
+    padded = np.concatenate([2 * points[:1] - points[1:2], points, 2 * points[-1:] - points[-2:-1]])
+    samples = []
+    for i in range(len(points) - 1):  # uniform Catmull-Rom, densely sampled per segment
+        p0, p1, p2, p3 = padded[i : i + 4]
+        t = np.linspace(0.0, 1.0, 200, endpoint=False)[:, None]
+        samples.append(0.5 * (2 * p1 + (p2 - p0) * t + (2 * p0 - 5 * p1 + 4 * p2 - p3) * t**2
+                              + (3 * p1 - p0 - 3 * p2 + p3) * t**3))
+    curve = np.concatenate([*samples, points[-1:]])
+    length = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(curve, axis=0), axis=1))])
+    at = np.linspace(0.0, length[-1], num_frames)
+    phase = rng.uniform(0.0, 2 * np.pi, 3)
+    poses = []
+    for s in at:
+        x, z = np.interp(s, length, curve[:, 0]), np.interp(s, length, curve[:, 1])
+        ahead = min(s + 0.05, length[-1])
+        dx = np.interp(ahead, length, curve[:, 0]) - np.interp(ahead - 0.05, length, curve[:, 0])
+        dz = np.interp(ahead, length, curve[:, 1]) - np.interp(ahead - 0.05, length, curve[:, 1])
+        u = s / length[-1]
+        yaw = np.arctan2(dz, dx) + 0.7 * np.sin(2 * np.pi * 5 * u + phase[0])
+        pitch = -0.18 + 0.25 * np.sin(2 * np.pi * 3 * u + phase[1])
+        height = 1.45 + 0.25 * np.sin(2 * np.pi * 4 * u + phase[2])
+        forward = np.array([np.cos(pitch) * np.cos(yaw), np.sin(pitch), np.cos(pitch) * np.sin(yaw)])
+        poses.append(look_pose(np.array([x, height, z]), forward))
+    return poses
+
+
+def loop_path(num_frames: int, seed: int) -> List[np.ndarray]:
     """Camera-to-world poses along a closed elliptical loop around the middle of the room, clear of furniture.
 
     The camera looks outwards from the loop's centre, swinging left/right and tilting slightly up/down, so the
@@ -149,6 +234,17 @@ def render_view(room: Room, camera: PinholeCamera) -> RenderedView:
     )
 
 
+def normal_label(view: RenderedView, depth: np.ndarray, k: Dict[str, float], kind: NormalsLabel) -> np.ndarray:
+    """The frame's 8-bit normal label: the exact normals, or those of the written (millimetre) depth map, as the
+    paper derived its normals from depth, with alpha 0 where they are undefined."""
+    if kind == "exact":
+        return _to_uint8((view.normals + 1.0) / 2.0)
+    normals = normals_from_depth(depth.astype(np.float64) / 1000.0, k["fl_x"], k["fl_y"], k["cx"], k["cy"])
+    labelled = np.isfinite(normals).all(axis=-1)
+    image = _to_uint8((np.nan_to_num(normals) + 1.0) / 2.0)
+    return np.concatenate([image, np.where(labelled, 255, 0).astype(np.uint8)[..., None]], axis=-1)
+
+
 def _to_uint8(values: np.ndarray) -> np.ndarray:
     return np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8)
 
@@ -174,14 +270,15 @@ def make_scene(config: MakeSceneConfig) -> Path:
     k = intrinsics(config.width, config.height)
     frames = []
     train, test = [], []
-    for i, pose in enumerate(camera_path(config.num_frames, config.seed)):
+    for i, pose in enumerate(camera_path(config.trajectory, config.num_frames, config.seed)):
         camera = PinholeCamera(config.width, config.height, k["fl_x"], k["fl_y"], k["cx"], k["cy"], pose)
         view = render_view(room, camera)
         rgb = _to_uint8(view.rgb)
+        depth = np.round(np.clip(view.depth * 1000.0, 0, 65535)).astype(np.uint16)
         labels = {
-            "depth": np.round(np.clip(view.depth * 1000.0, 0, 65535)).astype(np.uint16),
+            "depth": depth,
             "semantics": view.semantics,
-            "normals": _to_uint8((view.normals + 1.0) / 2.0),
+            "normals": normal_label(view, depth, k, config.normals),
             "shading": _to_uint8(lambertian_shading(view.normals, k["fl_x"], k["fl_y"], k["cx"], k["cy"])),
             "keypoints": _to_uint8(keypoint_label(rgb, config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR)),
             "edges": _to_uint8(canny_edges(rgb, *EDGE_THRESHOLDS)),
@@ -191,11 +288,11 @@ def make_scene(config: MakeSceneConfig) -> Path:
         cv2.imwrite(str(config.output_dir / "images" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
         for label, image in labels.items():
             if image.ndim == 3:
-                image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+                image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
             cv2.imwrite(str(config.output_dir / label / name), image)
             frame[f"{label}_file_path"] = f"{label}/{name}"
         frames.append(frame)
-        (test if i % config.test_every == config.test_every // 2 else train).append(frame["file_path"])
+        (test if i % config.test_every == config.test_offset else train).append(frame["file_path"])
 
     transforms = {
         "camera_model": "OPENCV",
@@ -214,11 +311,16 @@ def make_scene(config: MakeSceneConfig) -> Path:
         "ssnerf_scene": {
             "generator": "ssnerf-make-scene",
             "seed": config.seed,
+            "trajectory": config.trajectory,
             "num_frames": config.num_frames,
             "test_every": config.test_every,
+            "test_offset": config.test_offset,
             "hfov_deg": HFOV_DEG,
             "depth_unit": "millimetre z-depth (distance along the camera's viewing axis)",
             "normals_frame": "camera, OpenGL axes (x right, y up, z towards the viewer), stored as (n + 1) / 2 * 255",
+            "normals": "the ray caster's exact normals" if config.normals == "exact" else (
+                "finite differences of the written depth map (ssnerf-label's normals_from_points); alpha 0 where "
+                "no usable difference (depth discontinuities)"),
             "shading": "Lambertian, point light at the camera centre: clip(dot(n, -view_dir), 0, 1)",
             "keypoints": describe_keypoint_label(config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR),
             "edges": f"Canny on the 8-bit grey RGB, thresholds {EDGE_THRESHOLDS[0]:g} / {EDGE_THRESHOLDS[1]:g}",
@@ -239,7 +341,7 @@ FLY_THROUGH = Path("camera_paths") / "fly_through.json"
 def write_fly_through(config: MakeSceneConfig, fy: float) -> Path:
     """The camera loop sampled `path_frames` times, in the model's frame (as the dataparser will place the data)."""
     outputs = SSNeRFDataParserConfig(data=config.output_dir).setup().get_dataparser_outputs("train")
-    poses = to_model_frame(np.stack(camera_path(config.path_frames, config.seed)), outputs)
+    poses = to_model_frame(np.stack(camera_path(config.trajectory, config.path_frames, config.seed)), outputs)
     return write_camera_path(config.output_dir / FLY_THROUGH, list(poses), config.width, config.height, fy,
                              config.path_seconds)
 

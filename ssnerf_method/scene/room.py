@@ -603,6 +603,20 @@ def build_room(seed: int = 0) -> Room:
     b.add("ball", Sphere((-1.9, 0.15, 1.7), 0.15), "objects",
           BeachBall((c((0.9, 0.15, 0.1)), c((0.95, 0.85, 0.1)), c((0.1, 0.4, 0.85)))))
 
+    # Detail where the room was plainest (the front wall between the TV and the wardrobe, the corner by the shelf):
+    # a painting, a coat rack and a floor lamp, with thin parts and curved shapes.
+    b.box("painting_front", (0.3, 1.3, 2.47), (0.9, 1.9, 2.5), "painting",
+          Landscape(c((0.85, 0.7, 0.55)), (0.95, 0.95, 0.8), c((0.3, 0.5, 0.3)), c((0.5, 0.3, 0.2)), front=(2, -1)))
+    metal = Solid(c((0.2, 0.2, 0.22)))
+    b.add("coat_rack_pole", Cylinder(1.35, 2.3, 0.025, 0.0, 1.75), "objects", WoodGrain(c((0.45, 0.3, 0.18)), axis=1))
+    b.add("coat_rack_foot", Cylinder(1.35, 2.3, 0.2, 0.0, 0.03), "objects", metal)
+    for i, (dx, height) in enumerate(((-0.08, 1.62), (0.08, 1.52), (0.0, 1.76))):
+        b.add(f"coat_rack_hook{i}", Sphere((1.35 + dx, height, 2.3), 0.04), "objects", metal)
+    b.add("floor_lamp_pole", Cylinder(-2.6, -1.65, 0.02, 0.0, 1.5), "objects", metal)
+    b.add("floor_lamp_foot", Cylinder(-2.6, -1.65, 0.15, 0.0, 0.03), "objects", metal)
+    b.add("floor_lamp_shade", Sphere((-2.6, 1.62, -1.65), 0.17), "objects",
+          Stripes((c((0.95, 0.9, 0.75)), c((0.85, 0.75, 0.55))), period=0.05, axis=1))
+
     return Room(
         primitives=tuple(b.primitives),
         lights=(PointLight((-0.6, 2.8, 0.0), 0.7), PointLight((1.6, 2.8, -1.4), 0.7)),

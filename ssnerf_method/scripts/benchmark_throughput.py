@@ -1,6 +1,7 @@
 """Training throughput (rays/s) of SS-NeRF against RGB-only SS-NeRF and nerfstudio's vanilla NeRF, in one run.
 
-    python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 5] [--rays 1024] [--time-budget 60]
+    python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 5] [--rays 1024] \
+        [--time-budget 60]
 
 Four cases, all at the same rays per batch:
 
@@ -222,13 +223,7 @@ def time_training(
             if time.perf_counter() - start > time_budget:
                 break
     _sync(device)
-    seconds = time.perf_counter() - start
-
-    del pipeline, optimizers, callbacks
-    gc.collect()
-    if device.startswith("cuda"):
-        torch.cuda.empty_cache()
-    return timed, seconds
+    return timed, time.perf_counter() - start
 
 
 def _load_average() -> Optional[float]:
@@ -281,6 +276,9 @@ def run(config: BenchmarkConfig) -> Dict:
                 build(), config.steps, config.warmup, config.time_budget, config.min_steps, context
             )
             results[key] = CaseResult(key, label, method, properties, config.rays, steps, seconds)
+            gc.collect()  # the case's pipeline went with time_training's frame; free its memory before the next
+            if torch.cuda.is_available():
+                torch.cuda.empty_cache()
             CONSOLE.print(f"    {results[key].ms_per_step:.1f} ms/step, {results[key].rays_per_second:.0f} rays/s")
 
     load_after = _load_average()

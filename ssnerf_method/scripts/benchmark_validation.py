@@ -144,7 +144,8 @@ def main(config: BenchmarkValidationConfig) -> None:
     table.add_row("validation, headers only (the dataparser's)", f"{headers:.2f}", f"{headers / without:.1%}")
     table.add_row("validation with pixel checks (ssnerf-check's)", f"{contents:.2f}", f"{contents / without:.1%}")
     table.add_row("loading without validation (parser + every item decoded)", f"{without:.2f}", "100%")
-    table.add_row("loading with the dataparser's validation", f"{with_validation:.2f}", f"{with_validation / without:.1%}")
+    table.add_row("loading with the dataparser's validation", f"{with_validation:.2f}",
+                  f"{with_validation / without:.1%}")
     CONSOLE.print(table)
 
 

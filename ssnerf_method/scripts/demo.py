@@ -33,7 +33,6 @@ from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_scene
 
-
 DEMO_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
 """Default training steps of the demo per method (the methods' own defaults are for full-quality runs)."""
 
@@ -177,7 +176,8 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
     names = " ".join(spec.name for spec in pipeline.model.specs)  # type: ignore[attr-defined]
     CONSOLE.print(
         f"Trained in {train_seconds / 60:.1f} min; demo took {(time.time() - start) / 60:.1f} min.\n"
-        f"Metrics: {config.output_dir / 'metrics.json'}\nEvery property on one view: {config.output_dir / 'summary.png'}"
+        f"Metrics: {config.output_dir / 'metrics.json'}\n"
+        f"Every property on one view: {config.output_dir / 'summary.png'}"
         f"\nRenders (ground truth | SS-NeRF): "
         f"{config.output_dir / 'renders'}\nModel config: {config_path}  (try: ns-eval --load-config {config_path} "
         f"--output-path eval.json)\nBrowse every property: ns-viewer --load-config {config_path}\n"

@@ -146,7 +146,8 @@ def main(config: ExportPointsConfig) -> Dict[str, np.ndarray]:
     arrays = sample_points(pipeline, config)
     names = list(model.class_names) if model.class_spec is not None else []
     colours = (model.palette * 255).round().int().tolist() if names else []
-    comments = ["ssnerf-export-points", f"frame {'original dataset' if config.save_world_frame else 'nerfstudio model'}"]
+    frame = "original dataset" if config.save_world_frame else "nerfstudio model"
+    comments = ["ssnerf-export-points", f"frame {frame}"]
     comments += [f"class {index} {name}" for index, name in enumerate(names)]
     config.output_dir.mkdir(parents=True, exist_ok=True)
     write_ply(config.output_dir / PLY_NAME, arrays, comments)

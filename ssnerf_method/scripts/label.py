@@ -10,8 +10,8 @@ from rich.table import Table
 from nerfstudio.utils.rich_utils import CONSOLE, get_progress
 
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labels.label_dataset import KEPT, LABELLED, LabelDatasetConfig, LabelReport, label_dataset
 from ssnerf_method.errors import UserError, exit_with
+from ssnerf_method.labels.label_dataset import KEPT, LABELLED, LabelDatasetConfig, LabelReport, label_dataset
 
 
 def report_table(report: LabelReport, num_frames: int) -> Table:

@@ -1,5 +1,5 @@
 """`ssnerf-study`: the paper's studies, one subcommand each (`experiments/studies.py` for branches, rgb and multitask;
-`experiments/transfer.py`, `experiments/augmentation.py`, `experiments/autolabel.py`)."""
+`experiments/transfer.py`, `experiments/augmentation.py`, `experiments/autolabel.py`, `experiments/sparsity.py`)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ from typing_extensions import Annotated
 
 from ssnerf_method.experiments.augmentation import AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
+from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy
 from ssnerf_method.experiments.transfer import TransferStudy
 
@@ -20,6 +21,7 @@ Study = Union[
     Annotated[TransferStudy, tyro.conf.subcommand("transfer")],
     Annotated[AugmentationStudy, tyro.conf.subcommand("augmentation")],
     Annotated[AutoLabelStudy, tyro.conf.subcommand("autolabel")],
+    Annotated[SparsityStudy, tyro.conf.subcommand("sparsity")],
 ]
 
 

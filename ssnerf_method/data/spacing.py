@@ -1,0 +1,47 @@
+"""How far a dataset's test views are from its training views: what decides how much a label warp (the Heuristic)
+can get right, and so how hard a benchmark scene is."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Dict, Sequence
+
+import numpy as np
+from jaxtyping import Float
+
+ANGLE_WEIGHT = 0.5
+"""Metres per radian when ranking training views, as the Heuristic ranks them (`evaluation/heuristic.py`)."""
+
+
+def pose_spacing(train: Float[np.ndarray, "n 4 4"], test: Float[np.ndarray, "m 4 4"]) -> Dict[str, float]:
+    """Median over test views of the distance (metres) and angle (degrees) to the nearest training view, nearest by
+    camera-centre distance + `ANGLE_WEIGHT` x the angle between viewing directions (camera-to-world, OpenGL)."""
+    centres = train[:, :3, 3]
+    forwards = -train[:, :3, 2]
+    distances, angles = [], []
+    for pose in test:
+        distance = np.linalg.norm(centres - pose[:3, 3], axis=1)
+        angle = np.arccos(np.clip(forwards @ -pose[:3, 2], -1.0, 1.0))
+        nearest = int(np.argmin(distance + ANGLE_WEIGHT * angle))
+        distances.append(distance[nearest])
+        angles.append(np.degrees(angle[nearest]))
+    return {"median_m": float(np.median(distances)), "median_deg": float(np.median(angles)), "test_views": len(test)}
+
+
+def split_poses(meta: Dict, names: Sequence[str]) -> np.ndarray:
+    """(k, 4, 4) transform matrices of the frames whose image is named in `names` (by file name, so that the absolute
+    paths of a k-view copy's split lists match too), in the file's order."""
+    wanted = {Path(name).name for name in names}
+    return np.array([frame["transform_matrix"] for frame in meta["frames"]
+                     if Path(frame["file_path"]).name in wanted], dtype=np.float64).reshape(-1, 4, 4)
+
+
+def dataset_spacing(root: Path) -> Dict[str, float]:
+    """`pose_spacing` of a dataset's test split against its training split (from `transforms.json`'s split lists)."""
+    meta = json.loads((root / "transforms.json").read_text())
+    test = meta.get("test_filenames") or meta.get("val_filenames") or []
+    held_out = {Path(name).name for name in test}
+    train = meta.get("train_filenames") or [frame["file_path"] for frame in meta["frames"]
+                                            if Path(frame["file_path"]).name not in held_out]
+    return pose_spacing(split_poses(meta, train), split_poses(meta, test))
