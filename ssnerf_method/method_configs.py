@@ -21,9 +21,12 @@ from nerfstudio.plugins.types import MethodSpecification
 
 from ssnerf_method.data.datamanager import SSNeRFDataManagerConfig
 from ssnerf_method.errors import UserError
-from ssnerf_method.evaluation.pipeline import SSNeRFPipelineConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
+from ssnerf_method.pipelines.ssnerf_pipeline import SSNeRFPipelineConfig
 
+SHORT_RUN_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
+"""Training steps of a short run per method, the demo's and the benchmark's default (the methods' own
+`max_num_iterations` are for full-quality runs)."""
 
 @dataclass
 class SSNeRFTrainerConfig(TrainerConfig):

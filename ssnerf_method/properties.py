@@ -24,6 +24,7 @@ from nerfstudio.model_components.renderers import NormalsRenderer, RGBRenderer, 
 from nerfstudio.utils import colormaps
 
 from ssnerf_method.errors import UserError
+from ssnerf_method.labels.encoding import decode_normals, encode_normals
 
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
@@ -109,10 +110,18 @@ class PropertyKind(ABC):
     """Label value meaning "no label here" in the training batch."""
     prediction_suffix: str = ""
     """Suffix of the model output holding the rendered prediction when it is not itself display-ready."""
+    categorical: bool = False
+    """Values are class ids: resized with nearest neighbours, never interpolated."""
+    needs_pose: bool = False
+    """The field's decoder takes each ray's encoded camera pose as an input (the paper's normal modelling)."""
 
     @abstractmethod
     def head_channels(self, num_classes: int) -> int:
         """Channels the field head predicts per sample."""
+
+    def per_pixel(self) -> "PropertyKind":
+        """The kind as a network predicting each pixel of an image (the Hybrid's annotators) predicts it."""
+        return self
 
     def label_channels(self, num_classes: int) -> int:
         """Channels of the label tensor in the batch (defaults to the head's)."""
@@ -198,6 +207,7 @@ class ClassKind(PropertyKind):
 
     ignore_value = float(SEMANTIC_IGNORE)
     prediction_suffix = "_logits"
+    categorical = True
 
     def head_channels(self, num_classes: int) -> int:
         return num_classes
@@ -245,6 +255,11 @@ class NormalKind(PropertyKind):
 
     def __init__(self, mode: Literal["world", "pose"] = "world") -> None:
         self.mode = mode
+        self.needs_pose = mode == "pose"
+
+    def per_pixel(self) -> "NormalKind":
+        """An image network predicts the camera-frame encoding directly, as the pose mode does."""
+        return NormalKind("pose")
 
     def head_channels(self, num_classes: int) -> int:
         return 3
@@ -258,29 +273,29 @@ class NormalKind(PropertyKind):
         normals = NormalsRenderer()(values, weights, normalize=True)
         if context.world_to_camera is not None:  # (rays without a camera, e.g. ns-export's probe, stay in world axes)
             normals = torch.einsum("...ij,...j->...i", context.world_to_camera, normals)
-        return (F.normalize(normals, dim=-1) + 1.0) / 2.0
+        return encode_normals(F.normalize(normals, dim=-1))
 
     def export_outputs(self, name: str, prediction: Tensor, context: RenderContext) -> Dict[str, Tensor]:
         """`<name>_world`: the world-frame unit normal as (n+1)/2 in [0, 1], what `ns-export --normal-output-name`
         takes (the camera-frame prediction rotated back by each ray's camera-to-world rotation)."""
-        normals = prediction * 2.0 - 1.0
+        normals = decode_normals(prediction)
         if context.world_to_camera is not None:
             normals = torch.einsum("...ji,...j->...i", context.world_to_camera, normals)
-        return {f"{name}_world": ((F.normalize(normals, dim=-1) + 1.0) / 2.0).clamp(0.0, 1.0)}
+        return {f"{name}_world": encode_normals(F.normalize(normals, dim=-1)).clamp(0.0, 1.0)}
 
     def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
         """The world-frame unit normal as `nx`, `ny`, `nz` (the PLY convention)."""
-        normals = outputs[f"{name}_world"].float() * 2.0 - 1.0
+        normals = decode_normals(outputs[f"{name}_world"].float())
         return dict(zip(("nx", "ny", "nz"), normals.unbind(-1)))
 
     def reframe(self, label: Tensor, rotation: Tensor) -> Tensor:
-        normals = torch.einsum("ij,...j->...i", rotation.to(label), label * 2.0 - 1.0)
-        return (normals + 1.0) / 2.0
+        normals = torch.einsum("ij,...j->...i", rotation.to(label), decode_normals(label))
+        return encode_normals(normals)
 
     def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
         array, labelled = _read_uint8(path, width, height, 3, "normals ((n+1)/2 per channel)", alpha=True)
         values = array.astype(np.float32) / 255.0
-        lengths = np.linalg.norm(values[labelled] * 2.0 - 1.0, axis=-1)
+        lengths = np.linalg.norm(decode_normals(values[labelled]), axis=-1)
         off = float(np.mean(np.abs(lengths - 1.0) > NORMAL_LENGTH_TOLERANCE)) if lengths.size else 0.0
         if off > MAX_NON_UNIT_FRACTION:
             raise LabelFileError(

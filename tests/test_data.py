@@ -13,7 +13,7 @@ from PIL import Image
 
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
-from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY
+from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
 from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, SEMANTIC_IGNORE, LabelFileError
 

@@ -18,6 +18,7 @@ import pytest
 import torch
 from PIL import Image
 
+from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.importers import (
     PaperLLFFImportConfig,
@@ -29,7 +30,6 @@ from ssnerf_method.data.importers.paper_llff import convert_normals, normals_axe
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.labels.label_dataset import LabelDatasetConfig, label_dataset
-from ssnerf_method.scene.make_scene import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.scripts.import_data import main
 
 from source_layouts import (

@@ -146,3 +146,23 @@ def test_a_killed_task_is_retried_then_reported_failed_and_the_rerun_trains_only
     assert (victim / "metrics.json").is_file() and not (victim / "launcher.log.failed.json").exists()
     assert {path: path.stat().st_mtime_ns for path in others} == kept  # finished runs were not retrained
     assert "Failed runs" not in (output / "report.md").read_text()
+
+
+@pytest.mark.filterwarnings("ignore")
+def test_ctrl_c_cancels_the_tasks_and_keeps_the_finished_runs(tmp_path: Path) -> None:
+    output = tmp_path / "ray"
+    process = driver(output, "--properties", "semantics", "--no-all-properties-model")
+    deadline = time.time() + 900
+    while not list((output / "runs").rglob("metrics.json")):
+        assert process.poll() is None and time.time() < deadline, "no run finished"
+        time.sleep(0.2)
+    process.send_signal(signal.SIGINT)
+    text, _ = process.communicate(timeout=300)
+    assert process.returncode != 0 and "stopped; finished runs are kept" in text
+    finished_runs = list((output / "runs").rglob("metrics.json"))
+    assert finished_runs and all(json.loads(path.read_text())["psnr"] > 0 for path in finished_runs)
+    time.sleep(2)
+    started = [json.loads(path.read_text())["pid"] for path in (output / "runs").rglob("*.running")]
+    assert started  # some run was still training when Ctrl-C came
+    assert not [pid for pid in started if Path(f"/proc/{pid}").exists()]  # its worker was stopped with the driver
+    assert not (output / "report.md").exists()  # no half report: a new call resumes and writes it

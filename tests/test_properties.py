@@ -13,9 +13,10 @@ from nerfstudio.cameras.rays import RayBundle, RaySamples
 from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.model_components.ray_samplers import UniformSampler
 
+from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
 from ssnerf_method.evaluation.metrics import METRICS
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder
-from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, SSNeRFField
+from ssnerf_method.fields.ssnerf_field import SSNeRFField
 from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
@@ -67,13 +68,13 @@ def make_samples(bundle: RayBundle) -> RaySamples:
     return UniformSampler(num_samples=NUM_SAMPLES, train_stratified=False)(bundle)
 
 
-def make_field(specs: Sequence[PropertySpec], pose_conditioned: bool = False, encoder: str = "hashgrid") -> SSNeRFField:
+def make_field(specs: Sequence[PropertySpec], encoder: str = "hashgrid") -> SSNeRFField:
     torch.manual_seed(0)
     if encoder == "hashgrid":
         enc = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16, feature_dim=8)
     else:
         enc = PositionalMLPEncoder(num_layers=2, width=32)
-    field = SSNeRFField(specs, NUM_CLASSES, enc, decoder_width=16, pose_conditioned=pose_conditioned)
+    field = SSNeRFField(specs, NUM_CLASSES, enc, decoder_width=16)  # pose-conditioned when a kind needs the pose
     field.eval()
     return field
 
@@ -151,7 +152,8 @@ def test_channels_per_kind() -> None:
 def test_branches_condition_on_view_direction_and_pose() -> None:
     """v sees the view direction (not the pose); nv sees the pose (when conditioned) but not the direction."""
     specs = resolve_properties(OPTIONAL_PROPERTIES, normals_mode="pose")
-    field = make_field(specs, pose_conditioned=True)
+    field = make_field(specs)
+    assert field.pose_encoding is not None and make_field(resolve_properties(OPTIONAL_PROPERTIES)).pose_encoding is None
     dirs = torch.nn.functional.normalize(torch.tensor([[1.0, 0.2, 0.1], [0.0, 1.0, 0.3]]), dim=-1)
     base = make_samples(make_bundle(2, directions=dirs))
     other_dir = make_samples(make_bundle(2, directions=dirs[[1, 0]]))
@@ -187,7 +189,7 @@ def test_branches_condition_on_view_direction_and_pose() -> None:
 def test_pose_conditioned_field_reads_the_pose_and_defaults_to_identity() -> None:
     """The pose is a decoder input; rays without one (nerfstudio's exporter probes) get the identity pose."""
     specs = resolve_properties(["semantics", "normals"], normals_mode="pose")
-    field = make_field(specs, pose_conditioned=True)
+    field = make_field(specs)
     identity = make_bundle(pose=False)
     identity.metadata = {POSE_METADATA_KEY: torch.eye(4)[:3].reshape(1, 12).expand(NUM_RAYS, 12).clone()}
     with torch.no_grad():

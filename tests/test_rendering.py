@@ -11,7 +11,7 @@ from nerfstudio.cameras.rays import RayBundle, RaySamples
 from nerfstudio.data.scene_box import SceneBox
 from nerfstudio.field_components.field_heads import FieldHeadNames
 
-from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY
+from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
 from ssnerf_method.model.losses import LOSSES, cross_entropy_loss, l1_loss, mse_loss
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 from ssnerf_method.properties import (

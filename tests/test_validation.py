@@ -204,8 +204,8 @@ def test_headers_only_skips_pixel_checks(tiny_dataset: Path) -> None:
 
 
 def test_non_finite_loss_stops_training_at_that_step(tmp_path: Path, monkeypatch) -> None:
-    from ssnerf_method.evaluation.pipeline import TrainingDiverged
     from ssnerf_method.model.ssnerf_model import SSNeRFModel
+    from ssnerf_method.pipelines.ssnerf_pipeline import TrainingDiverged
 
     from test_training import lite_config, train
 
@@ -233,8 +233,8 @@ def test_non_finite_loss_stops_training_at_that_step(tmp_path: Path, monkeypatch
 def test_ns_eval_on_a_nan_model_fails_clearly(trained_scene, tmp_path: Path, monkeypatch, capsys) -> None:
     from nerfstudio.scripts.eval import ComputePSNR
 
-    from ssnerf_method.evaluation.pipeline import TrainingDiverged
     from ssnerf_method.model.ssnerf_model import SSNeRFModel
+    from ssnerf_method.pipelines.ssnerf_pipeline import TrainingDiverged
 
     _, config_path = trained_scene
     original = SSNeRFModel.render_camera

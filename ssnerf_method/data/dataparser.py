@@ -15,8 +15,8 @@ from nerfstudio.data.dataparsers.nerfstudio_dataparser import Nerfstudio, Nerfst
 from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.io import load_from_json
 
+from ssnerf_method.data.pose_metadata import add_pose_metadata
 from ssnerf_method.data.validate import transforms_file, validate_dataset
-from ssnerf_method.fields.ssnerf_field import add_pose_metadata
 from ssnerf_method.properties import REGISTRY
 
 

@@ -29,6 +29,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.camera_path import interpolate_poses
 from ssnerf_method.data.importers.writer import DatasetWriter
 from ssnerf_method.data.io import DatasetInputError, StagedOutputFolder
+from ssnerf_method.rendering.depth import rendered_z_depth
 
 DEPTH_UNIT = 1e-3
 """Metres per unit of the written depth maps (nerfstudio's default `depth_unit_scale_factor`)."""
@@ -126,7 +127,7 @@ def export_dataset(config: ExportDatasetConfig) -> Path:
                 outputs = model.render_camera(camera_at(cameras, pose).to(model.device))  # type: ignore
                 labels = {spec.name: spec.kind.encode(outputs[spec.prediction_key]) for spec in specs}
                 if config.depth:
-                    z_depth = outputs["depth"] / outputs["directions_norm"] / parser_outputs.dataparser_scale
+                    z_depth = rendered_z_depth(outputs) / parser_outputs.dataparser_scale
                     labels["depth"] = depth_millimetres(z_depth[..., 0])
                 c2w = parser_outputs.transform_poses_to_original_space(
                     torch.from_numpy(pose.camera_to_world[None]).float(), camera_convention="opengl"

@@ -65,6 +65,23 @@ def pose_distance(a: PinholeView, b: PinholeView, angle_weight: float = 0.5) -> 
     return float(np.linalg.norm(a.centre - b.centre)) + angle_weight * float(np.arccos(cosine))
 
 
+def nearest_view_copy(
+    train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, angle_weight: float = 0.5
+) -> Callable[[Cameras, int], Dict[str, Tensor]]:
+    """A predictor that copies the labels (RGB included) of the training view nearest to each camera, ranked as the
+    Heuristic ranks its sources, with no warp: the floor every method should beat (the demo's "nearest training
+    view" row)."""
+    views = [PinholeView.from_cameras(train.cameras, index) for index in range(len(train))]
+
+    def predict(cameras: Cameras, index: int) -> Dict[str, Tensor]:
+        target = PinholeView.from_cameras(cameras, index)
+        nearest = min(range(len(views)), key=lambda source: pose_distance(target, views[source], angle_weight))
+        item = train[nearest]
+        return {spec.name: spec.kind.label_as_prediction(spec.label(item, num_classes), num_classes) for spec in specs}
+
+    return predict
+
+
 def splat(
     source: PinholeView, depth: Float[np.ndarray, "h w"], target: PinholeView
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:

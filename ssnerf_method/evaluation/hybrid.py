@@ -21,7 +21,7 @@ from nerfstudio.cameras.cameras import Cameras
 
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.model.losses import LOSSES
-from ssnerf_method.properties import NormalKind, PropertySpec
+from ssnerf_method.properties import PropertySpec
 
 
 class EncoderDecoder(nn.Module):
@@ -70,9 +70,9 @@ class HybridBaselineConfig:
 
 
 def annotator_spec(spec: PropertySpec) -> PropertySpec:
-    """The property as an image annotator predicts it: normals as the camera-frame encoding (sigmoid), as in the
-    paper's pose-conditioned head; everything else as the registry says."""
-    return replace(spec, kind=NormalKind("pose")) if isinstance(spec.kind, NormalKind) else spec
+    """The property as an image annotator predicts it (`PropertyKind.per_pixel`: normals as the camera-frame
+    encoding, as the paper's pose-conditioned head predicts them; everything else as the registry says)."""
+    return replace(spec, kind=spec.kind.per_pixel())
 
 
 class HybridBaseline:

@@ -40,12 +40,13 @@ from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch, write_atomically
 from ssnerf_method.experiments.report import write_report
-from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
+from ssnerf_method.method_configs import SHORT_RUN_STEPS, ssnerf_config, ssnerf_lite_config
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertySpec, resolve_properties
+from ssnerf_method.rendering.depth import rendered_z_depth
 from ssnerf_method.rendering.palette import semantic_palette
 from ssnerf_method.scene.make_scene import MakeSceneConfig, camera_path, make_scene
 
-DEFAULT_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
+DEFAULT_STEPS = SHORT_RUN_STEPS
 """Training steps per model unless --steps is given (the demo's)."""
 
 NERF = "nerf"
@@ -419,8 +420,7 @@ def rendered_depth(pipeline: Pipeline, cameras) -> DepthSource:
     def depth(index: int) -> np.ndarray:
         with torch.no_grad():
             outputs = pipeline.model.render_camera(cameras[index : index + 1])
-        # rendered depth is the distance along the unit ray; z-depth divides by the camera-frame ray's length
-        return (outputs["depth"] / outputs["directions_norm"])[..., 0].cpu().numpy().astype(np.float64)
+        return rendered_z_depth(outputs)[..., 0].cpu().numpy().astype(np.float64)
 
     return depth
 

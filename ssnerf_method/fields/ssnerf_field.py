@@ -13,7 +13,6 @@ import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
-from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.cameras.rays import RaySamples
 from nerfstudio.field_components.activations import trunc_exp
 from nerfstudio.field_components.encodings import NeRFEncoding, SHEncoding
@@ -22,19 +21,9 @@ from nerfstudio.field_components.mlp import MLP
 from nerfstudio.field_components.spatial_distortions import SceneContraction
 from nerfstudio.fields.base_field import Field, get_normalized_directions
 
+from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
 from ssnerf_method.fields.encoders import PositionEncoder
 from ssnerf_method.properties import Branch, PropertySpec
-
-POSE_METADATA_KEY = "camera_to_world"
-"""Ray metadata holding each ray's camera-to-world 3x4 matrix, flattened to 12 numbers."""
-
-
-def add_pose_metadata(cameras: Cameras) -> Cameras:
-    """Attach each camera's flattened camera-to-world matrix so its rays carry it (normals rotation, pose input)."""
-    metadata = dict(cameras.metadata or {})
-    metadata[POSE_METADATA_KEY] = cameras.camera_to_worlds.reshape(*cameras.camera_to_worlds.shape[:-2], 12)
-    cameras.metadata = metadata
-    return cameras
 
 
 class BranchDecoder(nn.Module):
@@ -84,7 +73,6 @@ class SSNeRFField(Field):
         direction_encoding: "nerf" (4-frequency sinusoids, the paper's) or "sh" (spherical harmonics, degree 4).
         decoder_width, decoder_layers: size of each decoder MLP.
         decoder_sharing: one decoder MLP per branch (the paper's) or one per property.
-        pose_conditioned: feed the encoded camera pose to F_dec^nv (the paper's normal modelling).
         density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
         implementation: "tcnn" or "torch" for the spherical-harmonics encoding.
@@ -99,7 +87,6 @@ class SSNeRFField(Field):
         decoder_width: int = 128,
         decoder_layers: int = 1,
         decoder_sharing: DecoderSharing = "branch",
-        pose_conditioned: bool = False,
         density_activation: Literal["relu", "trunc_exp"] = "relu",
         density_noise: float = 0.0,
         implementation: Literal["tcnn", "torch"] = "torch",
@@ -116,7 +103,7 @@ class SSNeRFField(Field):
             self.direction_encoding = NeRFEncoding(in_dim=3, num_frequencies=4, min_freq_exp=0.0, max_freq_exp=3.0,
                                                    include_input=True)
         self.pose_encoding: Optional[NeRFEncoding] = None
-        if pose_conditioned:
+        if any(spec.kind.needs_pose for spec in specs):  # the paper's normal modelling: F_dec^nv sees the pose
             self.pose_encoding = NeRFEncoding(in_dim=12, num_frequencies=10, min_freq_exp=0.0, max_freq_exp=9.0,
                                               include_input=True)
 

@@ -25,6 +25,7 @@ import numpy as np
 from jaxtyping import Float, UInt8
 from scipy import ndimage
 
+from ssnerf_method.labels.encoding import decode_normals, encode_normals
 from ssnerf_method.properties import SEMANTIC_IGNORE
 
 
@@ -86,9 +87,9 @@ def corrupt_dense(
     noise *= strength / max(float(np.abs(noise).mean()), 1e-12)
     shifted = values.reshape(height, width, channels) + noise
     if channels == 3:  # a direction again: renormalise in [-1, 1], back to the encoding
-        vectors = shifted * 2.0 - 1.0
+        vectors = decode_normals(shifted)
         vectors /= np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-9)
-        shifted = (vectors + 1.0) / 2.0
+        shifted = encode_normals(vectors)
     return np.clip(shifted, 0.0, 1.0).reshape(values.shape)
 
 

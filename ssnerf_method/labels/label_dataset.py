@@ -36,6 +36,7 @@ from ssnerf_method.data.io import DatasetInputError, Staging, backup_once, read_
 from ssnerf_method.data.transforms import Transforms, camera_key, camera_rays, frame_camera, is_perspective
 from ssnerf_method.data.validate import validate_dataset, validate_transforms
 from ssnerf_method.labels.edges import canny_edges
+from ssnerf_method.labels.encoding import decode_normals, encode_normals, to_uint8
 from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
 from ssnerf_method.labels.normals import normals_from_points
 from ssnerf_method.labels.shading import shading_from_rays
@@ -120,17 +121,13 @@ def _with_alpha(image: np.ndarray, labelled: np.ndarray) -> np.ndarray:
     return np.concatenate([image.reshape(*labelled.shape, -1), alpha[..., None]], axis=-1)
 
 
-def _to_uint8(values: np.ndarray) -> np.ndarray:
-    return np.round(np.clip(np.nan_to_num(values), 0.0, 1.0) * 255.0).astype(np.uint8)
-
-
 def label_edges(context: FrameContext) -> np.ndarray:
-    return _to_uint8(canny_edges(context.rgb, context.config.canny_low, context.config.canny_high))
+    return to_uint8(canny_edges(context.rgb, context.config.canny_low, context.config.canny_high))
 
 
 def label_keypoints(context: FrameContext) -> np.ndarray:
     config = context.config
-    return _to_uint8(keypoint_label(context.rgb, config.keypoint_label, config.keypoint_sigma,
+    return to_uint8(keypoint_label(context.rgb, config.keypoint_label, config.keypoint_sigma,
                                     config.keypoint_detector))
 
 
@@ -178,14 +175,14 @@ def label_normals(context: FrameContext) -> np.ndarray:
         normals = cv2.resize(normals, (width, height), interpolation=cv2.INTER_NEAREST)
     context.normals = normals
     labelled = np.isfinite(normals).all(axis=-1)
-    return _with_alpha(_to_uint8((normals + 1.0) / 2.0), labelled)
+    return _with_alpha(to_uint8(encode_normals(normals)), labelled)
 
 
 def use_given_normals(context: FrameContext, path: Path) -> None:
     """Decode the frame's own normals file (for shading)."""
     height, width = context.rgb.shape[:2]
     encoded = REGISTRY["normals"].kind.read(path, width, height, 0).numpy().astype(np.float64)
-    normals = encoded * 2.0 - 1.0
+    normals = decode_normals(encoded)
     context.normals = normals / np.linalg.norm(normals, axis=-1, keepdims=True)
 
 
@@ -193,7 +190,7 @@ def label_shading(context: FrameContext) -> np.ndarray:
     if context.normals is None:
         raise Skip("no normals (given or derived from depth)")
     shading = shading_from_rays(context.normals, context.rays(1.0))
-    return _with_alpha(_to_uint8(shading), np.isfinite(shading))
+    return _with_alpha(to_uint8(shading), np.isfinite(shading))
 
 
 def semantics_source(context: FrameContext) -> Path:

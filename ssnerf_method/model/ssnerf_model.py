@@ -26,9 +26,10 @@ from nerfstudio.utils import colormaps
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataset import DEPTH_KEY
+from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY, add_pose_metadata
 from ssnerf_method.evaluation.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
-from ssnerf_method.fields.ssnerf_field import POSE_METADATA_KEY, DecoderSharing, SSNeRFField, add_pose_metadata
+from ssnerf_method.fields.ssnerf_field import DecoderSharing, SSNeRFField
 from ssnerf_method.model.encoder_transfer import encoder_modules, load_encoders
 from ssnerf_method.model.loss_balancing import LossBalancer
 from ssnerf_method.model.losses import LOSSES
@@ -41,6 +42,7 @@ from ssnerf_method.properties import (
     RenderContext,
     resolve_properties,
 )
+from ssnerf_method.rendering.depth import rendered_z_depth
 from ssnerf_method.rendering.palette import semantic_palette
 from ssnerf_method.rendering.sampling import (
     HierarchicalSampling,
@@ -186,7 +188,6 @@ class SSNeRFModel(Model):
             decoder_width=self.config.decoder_width,
             decoder_layers=self.config.decoder_layers,
             decoder_sharing=self.config.decoder_sharing,
-            pose_conditioned=self.config.normals_mode == "pose",
             density_activation=self.config.density_activation,
             density_noise=self.config.density_noise,
             implementation=self.config.implementation,
@@ -351,8 +352,7 @@ class SSNeRFModel(Model):
             statistics[spec.name] = metric.statistics(prediction, label, spec.kind.valid(label), self.num_classes)
         if DEPTH_KEY in batch and "directions_norm" in outputs:
             truth = batch[DEPTH_KEY].to(self.device)
-            # rendered depth is the distance along the unit ray; z-depth divides by the camera-frame ray's length
-            z_depth = outputs["depth"] / outputs["directions_norm"] / self.dataparser_scale
+            z_depth = rendered_z_depth(outputs) / self.dataparser_scale
             valid = (torch.isfinite(truth) & (truth > 0))[..., 0]
             statistics[DEPTH_METRIC] = METRICS[DEPTH_METRIC].statistics(z_depth, truth, valid, self.num_classes)
         return statistics

@@ -26,13 +26,16 @@ import numpy as np
 import tyro
 
 from ssnerf_method.data.camera_path import to_model_frame, write_camera_path
+from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.labels.edges import canny_edges
+from ssnerf_method.labels.encoding import encode_normals, to_uint8
 from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
 from ssnerf_method.labels.normals import normals_from_depth
 from ssnerf_method.labels.shading import lambertian_shading
+from ssnerf_method.properties import REGISTRY
 from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
-from ssnerf_method.scene.room import SEMANTIC_CLASSES, SEMANTIC_COLORS, Room, build_room
+from ssnerf_method.scene.room import Room, build_room
 
 HFOV_DEG = 75.0
 """Horizontal field of view of the pinhole camera."""
@@ -58,6 +61,9 @@ SPLITS: Dict[str, Dict[str, int]] = {
 """Each trajectory's default frame count and held-out frames (frame i is a test frame when
 i % test_every == test_offset): the loop's every 5th from frame 2; the walkthrough's every 8th from frame 0, as the
 paper's released scenes (50 frames, `llffhold = 8`)."""
+
+DEPTH_FILE_KEY = "depth_file_path"
+"""nerfstudio's per-frame key of the depth map (depth is not a registry property)."""
 
 LABEL_DIRS = ("images", "depth", "semantics", "normals", "shading", "keypoints", "edges")
 """Sub-folders written per frame; `images` holds RGB, the others the label of the same name."""
@@ -238,15 +244,11 @@ def normal_label(view: RenderedView, depth: np.ndarray, k: Dict[str, float], kin
     """The frame's 8-bit normal label: the exact normals, or those of the written (millimetre) depth map, as the
     paper derived its normals from depth, with alpha 0 where they are undefined."""
     if kind == "exact":
-        return _to_uint8((view.normals + 1.0) / 2.0)
+        return to_uint8(encode_normals(view.normals))
     normals = normals_from_depth(depth.astype(np.float64) / 1000.0, k["fl_x"], k["fl_y"], k["cx"], k["cy"])
     labelled = np.isfinite(normals).all(axis=-1)
-    image = _to_uint8((np.nan_to_num(normals) + 1.0) / 2.0)
+    image = to_uint8(encode_normals(np.nan_to_num(normals)))
     return np.concatenate([image, np.where(labelled, 255, 0).astype(np.uint8)[..., None]], axis=-1)
-
-
-def _to_uint8(values: np.ndarray) -> np.ndarray:
-    return np.round(np.clip(values, 0.0, 1.0) * 255.0).astype(np.uint8)
 
 
 def _prepare_output_dir(output_dir: Path, overwrite: bool) -> None:
@@ -273,15 +275,15 @@ def make_scene(config: MakeSceneConfig) -> Path:
     for i, pose in enumerate(camera_path(config.trajectory, config.num_frames, config.seed)):
         camera = PinholeCamera(config.width, config.height, k["fl_x"], k["fl_y"], k["cx"], k["cy"], pose)
         view = render_view(room, camera)
-        rgb = _to_uint8(view.rgb)
+        rgb = to_uint8(view.rgb)
         depth = np.round(np.clip(view.depth * 1000.0, 0, 65535)).astype(np.uint16)
         labels = {
             "depth": depth,
             "semantics": view.semantics,
             "normals": normal_label(view, depth, k, config.normals),
-            "shading": _to_uint8(lambertian_shading(view.normals, k["fl_x"], k["fl_y"], k["cx"], k["cy"])),
-            "keypoints": _to_uint8(keypoint_label(rgb, config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR)),
-            "edges": _to_uint8(canny_edges(rgb, *EDGE_THRESHOLDS)),
+            "shading": to_uint8(lambertian_shading(view.normals, k["fl_x"], k["fl_y"], k["cx"], k["cy"])),
+            "keypoints": to_uint8(keypoint_label(rgb, config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR)),
+            "edges": to_uint8(canny_edges(rgb, *EDGE_THRESHOLDS)),
         }
         name = f"frame_{i:05d}.png"
         frame = {"file_path": f"images/{name}", "transform_matrix": pose.tolist()}
@@ -290,7 +292,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
             if image.ndim == 3:
                 image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
             cv2.imwrite(str(config.output_dir / label / name), image)
-            frame[f"{label}_file_path"] = f"{label}/{name}"
+            frame[REGISTRY[label].file_key if label in REGISTRY else DEPTH_FILE_KEY] = f"{label}/{name}"
         frames.append(frame)
         (test if i % config.test_every == config.test_offset else train).append(frame["file_path"])
 

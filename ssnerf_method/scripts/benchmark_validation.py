@@ -32,6 +32,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.dataparser import SSNeRFDataParser, SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.validate import validate_dataset
+from ssnerf_method.labels.encoding import encode_normals, to_uint8
 from ssnerf_method.properties import REGISTRY
 
 
@@ -61,7 +62,7 @@ def write_frame(root: Path, index: int, width: int, height: int) -> dict:
     colours = rng.uniform(0.2, 0.9, (6, 3)).astype(np.float32)
     rgb = colours[ids] * (0.7 + 0.3 * rows)[..., None]
     normal_table = np.array([[0, 0, 1], [1, 0, 0], [0, 1, 0], [-1, 0, 0], [0, -1, 0], [0.6, 0, 0.8]], np.float32)
-    normals = np.round((normal_table[ids] + 1.0) / 2.0 * 255.0).astype(np.uint8)
+    normals = to_uint8(encode_normals(normal_table[ids]))
     edges = (cv2.Canny(ids * 40, 10, 20) > 0).astype(np.uint8) * 255
     name = f"frame_{index:05d}"
     files = {

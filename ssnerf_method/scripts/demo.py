@@ -28,13 +28,11 @@ from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.evaluation.figures import display_image, property_grid
-from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics
-from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
+from ssnerf_method.evaluation.heuristic import nearest_view_copy
+from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.method_configs import SHORT_RUN_STEPS, ssnerf_config, ssnerf_lite_config
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_scene
-
-DEMO_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
-"""Default training steps of the demo per method (the methods' own defaults are for full-quality runs)."""
 
 
 @dataclass
@@ -64,23 +62,12 @@ class DemoConfig:
 
 
 def nearest_view_baseline(pipeline: Pipeline) -> Dict[str, float]:
-    """Score of copying the nearest training view's labels (closest camera centre, then view direction), with the
+    """Score of copying the nearest training view's labels (`evaluation.heuristic.nearest_view_copy`), with the
     split-level metrics `ns-eval` reports."""
     model: SSNeRFModel = pipeline.model  # type: ignore[assignment]
     train, test = pipeline.datamanager.train_dataset, pipeline.datamanager.eval_dataset  # type: ignore[attr-defined]
-    train_poses, test_poses = train.cameras.camera_to_worlds, test.cameras.camera_to_worlds
-    totals: Dict[str, Statistics] = {}
-    for test_index in range(len(test)):
-        distance = torch.linalg.norm(train_poses[:, :, 3] - test_poses[test_index, :, 3], dim=-1)
-        alignment = (train_poses[:, :, 2] * test_poses[test_index, :, 2]).sum(-1)
-        nearest = int(torch.argmin(distance - 1e-3 * alignment))
-        target, source = test[test_index], train[nearest]
-        for spec in model.specs:
-            label, copied = spec.label(target, model.num_classes), spec.label(source, model.num_classes)
-            copied = spec.kind.label_as_prediction(copied, model.num_classes)
-            view = METRICS[spec.metric].statistics(copied, label, spec.kind.valid(label), model.num_classes)
-            totals[spec.name] = add_statistics(totals.get(spec.name, {}), view)
-    return model.metrics_from_statistics(totals)
+    return score_predictor(nearest_view_copy(train, model.specs, model.num_classes), test, model.specs,
+                           model.num_classes)
 
 
 def evaluate(
@@ -141,7 +128,7 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
     trainer_config.output_dir = config.output_dir / "runs"
     trainer_config.timestamp = "demo"
     trainer_config.vis = "tensorboard"
-    trainer_config.max_num_iterations = config.max_num_iterations or DEMO_STEPS[method]
+    trainer_config.max_num_iterations = config.max_num_iterations or SHORT_RUN_STEPS[method]
     trainer_config.steps_per_save = trainer_config.max_num_iterations
     trainer_config.steps_per_eval_image = trainer_config.max_num_iterations + 1
     trainer_config.steps_per_eval_all_images = trainer_config.max_num_iterations + 1

@@ -17,6 +17,7 @@ from typing import Annotated
 import numpy as np
 import tyro
 
+from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.importers.writer import (
     DatasetWriter,
     ImportSummary,
@@ -30,8 +31,7 @@ from ssnerf_method.data.importers.writer import (
     to_uint8,
 )
 from ssnerf_method.data.io import DatasetInputError, StagedOutputFolder, read_image
-from ssnerf_method.properties import SEMANTIC_IGNORE
-from ssnerf_method.scene.make_scene import SEMANTIC_CLASSES, SEMANTIC_COLORS
+from ssnerf_method.properties import REGISTRY, SEMANTIC_IGNORE
 
 LAYOUT = "paper-llff"
 
@@ -212,7 +212,7 @@ def import_paper_llff(config: PaperLLFFImportConfig) -> ImportSummary:
                     label = _read_label(prop, files[image_path.stem], normals_map, len(class_names))
                     if label.shape[:2] != (height, width):
                         resized[folders[prop].name] = resized.get(folders[prop].name, 0) + 1
-                    labels[prop] = resize(label, width, height, nearest=prop == "semantics")
+                    labels[prop] = resize(label, width, height, nearest=REGISTRY[prop].kind.categorical)
             file_path = writer.add_frame(index, rgb, camera_to_world[index], labels)
             held_out = index % config.test_every == 0
             for split in ("val", "test") if held_out else ("train",):

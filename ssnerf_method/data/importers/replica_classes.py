@@ -7,7 +7,7 @@ gives its NYU-13 class. Keeping the two steps apart keeps every choice checkable
 
 from __future__ import annotations
 
-from ssnerf_method.scene.make_scene import SEMANTIC_CLASSES
+from ssnerf_method.data.classes import SEMANTIC_CLASSES
 
 VOID = SEMANTIC_CLASSES[0]
 """Class 0 of the NYU-13 list: no label."""

@@ -19,6 +19,7 @@ from typing import Annotated
 import numpy as np
 import tyro
 
+from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.importers.replica_classes import VOID, replica_to_nyu13
 from ssnerf_method.data.importers.writer import (
     DatasetWriter,
@@ -32,7 +33,6 @@ from ssnerf_method.data.importers.writer import (
 )
 from ssnerf_method.data.io import DatasetInputError, StagedOutputFolder, read_image
 from ssnerf_method.properties import SEMANTIC_IGNORE
-from ssnerf_method.scene.make_scene import SEMANTIC_CLASSES, SEMANTIC_COLORS
 
 LAYOUT = "semantic-nerf"
 
