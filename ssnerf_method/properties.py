@@ -16,7 +16,7 @@ from typing import Dict, List, Literal, Optional, Sequence, Tuple
 import numpy as np
 import torch
 import torch.nn.functional as F
-from jaxtyping import Float
+from jaxtyping import Bool, Float
 from PIL import Image
 from torch import Tensor
 
@@ -127,15 +127,18 @@ class PropertyKind(ABC):
         """Channels of the label tensor in the batch (defaults to the head's)."""
         return self.head_channels(num_classes)
 
-    def activation(self, raw: Tensor) -> Tensor:
+    def activation(self, raw: Float[Tensor, "*bs channels"]) -> Float[Tensor, "*bs channels"]:
         """Per-sample activation applied to the head's raw output."""
         return raw
 
-    def render(self, values: Tensor, weights: Float[Tensor, "*bs num_samples 1"], context: RenderContext) -> Tensor:
+    def render(
+        self, values: Float[Tensor, "*bs num_samples channels"], weights: Float[Tensor, "*bs num_samples 1"],
+        context: RenderContext,
+    ) -> Float[Tensor, "*bs channels"]:
         """Volume-render per-sample values into the per-ray prediction the loss compares with the label."""
         return SemanticRenderer()(values, weights)
 
-    def valid(self, label: Tensor) -> Tensor:
+    def valid(self, label: Float[Tensor, "*bs channels"]) -> Bool[Tensor, " *bs"]:
         """Boolean mask of rays whose label exists."""
         return ~torch.isnan(label).any(dim=-1)
 
@@ -148,10 +151,12 @@ class PropertyKind(ABC):
         return torch.full((height, width, self.label_channels(num_classes)), self.ignore_value)
 
     @abstractmethod
-    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+    def display(
+        self, prediction: Float[Tensor, "*bs channels"], palette: Optional[Float[Tensor, "classes 3"]] = None
+    ) -> Float[Tensor, "*bs out"]:
         """Display-ready image: 3-channel colours or a 1-channel float in [0, 1]."""
 
-    def label_as_prediction(self, label: Tensor, num_classes: int) -> Tensor:
+    def label_as_prediction(self, label: Float[Tensor, "*bs channels"], num_classes: int) -> Float[Tensor, "*bs out"]:
         """A label in the rendered prediction's layout (for display), unlabelled pixels zeroed."""
         return torch.nan_to_num(label, nan=0.0)
 
@@ -162,12 +167,16 @@ class PropertyKind(ABC):
         encoded = np.round(values * 255.0).astype(np.uint8)
         return encoded[..., 0] if encoded.shape[-1] == 1 else encoded
 
-    def reframe(self, label: Tensor, rotation: Float[Tensor, "3 3"]) -> Tensor:
+    def reframe(
+        self, label: Float[Tensor, "*bs channels"], rotation: Float[Tensor, "3 3"]
+    ) -> Float[Tensor, "*bs channels"]:
         """A label moved to another camera whose frame is `rotation` @ this one's (labels warped between views).
         Most properties are not vectors in the camera frame and stay as they are."""
         return label
 
-    def export_outputs(self, name: str, prediction: Tensor, context: RenderContext) -> Dict[str, Tensor]:
+    def export_outputs(
+        self, name: str, prediction: Float[Tensor, "*bs channels"], context: RenderContext
+    ) -> Dict[str, Tensor]:
         """Extra per-ray outputs in the conventions of nerfstudio's exporters (`ns-export`); none by default."""
         return {}
 
@@ -186,14 +195,19 @@ class ColorKind(PropertyKind):
     def head_channels(self, num_classes: int) -> int:
         return 3
 
-    def activation(self, raw: Tensor) -> Tensor:
+    def activation(self, raw: Float[Tensor, "*bs channels"]) -> Float[Tensor, "*bs channels"]:
         return torch.sigmoid(raw)
 
-    def render(self, values: Tensor, weights: Tensor, context: RenderContext) -> Tensor:
+    def render(
+        self, values: Float[Tensor, "*bs num_samples channels"], weights: Float[Tensor, "*bs num_samples 1"],
+        context: RenderContext,
+    ) -> Float[Tensor, "*bs channels"]:
         background = "last_sample" if context.background_color is None else context.background_color
         return RGBRenderer(background_color=background)(values, weights)
 
-    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+    def display(
+        self, prediction: Float[Tensor, "*bs channels"], palette: Optional[Float[Tensor, "classes 3"]] = None
+    ) -> Float[Tensor, "*bs out"]:
         return prediction.clamp(0.0, 1.0)
 
     def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
@@ -215,10 +229,10 @@ class ClassKind(PropertyKind):
     def label_channels(self, num_classes: int) -> int:
         return 1
 
-    def valid(self, label: Tensor) -> Tensor:
+    def valid(self, label: Float[Tensor, "*bs channels"]) -> Bool[Tensor, " *bs"]:
         return label[..., 0] != SEMANTIC_IGNORE
 
-    def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
+    def read(self, path: Path, width: int, height: int, num_classes: int) -> Float[Tensor, "height width channels"]:
         array, _ = _read_uint8(path, width, height, 1, "semantics (class ids)")
         bad = np.unique(array[(array >= num_classes) & (array != SEMANTIC_IGNORE)])
         if bad.size:
@@ -228,15 +242,17 @@ class ClassKind(PropertyKind):
             )
         return torch.from_numpy(array.astype(np.float32))[..., None]
 
-    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+    def display(
+        self, prediction: Float[Tensor, "*bs channels"], palette: Optional[Float[Tensor, "classes 3"]] = None
+    ) -> Float[Tensor, "*bs out"]:
         assert palette is not None, "semantic display needs a class palette"
         return palette.to(prediction.device)[prediction.argmax(dim=-1)]
 
-    def label_as_prediction(self, label: Tensor, num_classes: int) -> Tensor:
+    def label_as_prediction(self, label: Float[Tensor, "*bs channels"], num_classes: int) -> Float[Tensor, "*bs out"]:
         ids = label[..., 0].long().clamp(max=num_classes - 1) * self.valid(label)
         return F.one_hot(ids, num_classes).float()
 
-    def encode(self, prediction: Tensor) -> np.ndarray:
+    def encode(self, prediction: Float[Tensor, "height width channels"]) -> np.ndarray:
         """The most likely class id per pixel, (H, W) uint8."""
         return prediction.argmax(dim=-1).cpu().numpy().astype(np.uint8)
 
@@ -264,10 +280,13 @@ class NormalKind(PropertyKind):
     def head_channels(self, num_classes: int) -> int:
         return 3
 
-    def activation(self, raw: Tensor) -> Tensor:
+    def activation(self, raw: Float[Tensor, "*bs channels"]) -> Float[Tensor, "*bs channels"]:
         return torch.sigmoid(raw) if self.mode == "pose" else raw
 
-    def render(self, values: Tensor, weights: Tensor, context: RenderContext) -> Tensor:
+    def render(
+        self, values: Float[Tensor, "*bs num_samples channels"], weights: Float[Tensor, "*bs num_samples 1"],
+        context: RenderContext,
+    ) -> Float[Tensor, "*bs channels"]:
         if self.mode == "pose":
             return SemanticRenderer()(values, weights)
         normals = NormalsRenderer()(values, weights, normalize=True)
@@ -275,7 +294,9 @@ class NormalKind(PropertyKind):
             normals = torch.einsum("...ij,...j->...i", context.world_to_camera, normals)
         return encode_normals(F.normalize(normals, dim=-1))
 
-    def export_outputs(self, name: str, prediction: Tensor, context: RenderContext) -> Dict[str, Tensor]:
+    def export_outputs(
+        self, name: str, prediction: Float[Tensor, "*bs channels"], context: RenderContext
+    ) -> Dict[str, Tensor]:
         """`<name>_world`: the world-frame unit normal as (n+1)/2 in [0, 1], what `ns-export --normal-output-name`
         takes (the camera-frame prediction rotated back by each ray's camera-to-world rotation)."""
         normals = decode_normals(prediction)
@@ -288,11 +309,13 @@ class NormalKind(PropertyKind):
         normals = decode_normals(outputs[f"{name}_world"].float())
         return dict(zip(("nx", "ny", "nz"), normals.unbind(-1)))
 
-    def reframe(self, label: Tensor, rotation: Tensor) -> Tensor:
+    def reframe(
+        self, label: Float[Tensor, "*bs channels"], rotation: Float[Tensor, "3 3"]
+    ) -> Float[Tensor, "*bs channels"]:
         normals = torch.einsum("ij,...j->...i", rotation.to(label), decode_normals(label))
         return encode_normals(normals)
 
-    def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
+    def read(self, path: Path, width: int, height: int, num_classes: int) -> Float[Tensor, "height width channels"]:
         array, labelled = _read_uint8(path, width, height, 3, "normals ((n+1)/2 per channel)", alpha=True)
         values = array.astype(np.float32) / 255.0
         lengths = np.linalg.norm(decode_normals(values[labelled]), axis=-1)
@@ -305,7 +328,9 @@ class NormalKind(PropertyKind):
         values[~labelled] = np.nan
         return torch.from_numpy(values)
 
-    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+    def display(
+        self, prediction: Float[Tensor, "*bs channels"], palette: Optional[Float[Tensor, "classes 3"]] = None
+    ) -> Float[Tensor, "*bs out"]:
         return prediction.clamp(0.0, 1.0)
 
 
@@ -323,16 +348,18 @@ class ScalarKind(PropertyKind):
     def head_channels(self, num_classes: int) -> int:
         return 1
 
-    def activation(self, raw: Tensor) -> Tensor:
+    def activation(self, raw: Float[Tensor, "*bs channels"]) -> Float[Tensor, "*bs channels"]:
         return torch.sigmoid(raw) if self.activation_name == "sigmoid" else torch.relu(raw)
 
-    def read(self, path: Path, width: int, height: int, num_classes: int) -> Tensor:
+    def read(self, path: Path, width: int, height: int, num_classes: int) -> Float[Tensor, "height width channels"]:
         array, labelled = _read_uint8(path, width, height, 1, "this map (value/255 in [0, 1])", alpha=True)
         values = array.astype(np.float32) / 255.0
         values[~labelled] = np.nan
         return torch.from_numpy(values)[..., None]
 
-    def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Tensor:
+    def display(
+        self, prediction: Float[Tensor, "*bs channels"], palette: Optional[Float[Tensor, "classes 3"]] = None
+    ) -> Float[Tensor, "*bs out"]:
         return prediction.clamp(0.0, 1.0)
 
 

@@ -73,7 +73,13 @@ def exclusive(lock: Path) -> Iterator[None]:
     with working locks, never train the same run at once; the second waits, then finds the first one's result."""
     lock.parent.mkdir(parents=True, exist_ok=True)
     with lock.open("a") as handle:
-        fcntl.flock(handle, fcntl.LOCK_EX)
+        try:
+            fcntl.flock(handle, fcntl.LOCK_EX)
+        except OSError as error:  # a filesystem without locks (some NFS mounts): run unguarded, as before locks
+            CONSOLE.print(f"[yellow]{lock}: no file lock on this filesystem ({error}); two commands sharing this "
+                          "--output could train this run at once")
+            yield
+            return
         try:
             yield
         finally:

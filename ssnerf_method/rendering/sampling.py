@@ -9,9 +9,10 @@ surfaces, and only the field's own samples are rendered; the proposals learn thr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Tuple
+from typing import Dict, List, Tuple, Union
 
 import numpy as np
+from jaxtyping import Float
 from torch import Tensor, nn
 
 from nerfstudio.cameras.rays import RayBundle, RaySamples
@@ -27,8 +28,9 @@ class SampleLevel:
     """Samples of one level, the field's outputs at them and their rendering weights."""
 
     ray_samples: RaySamples
-    field_outputs: Dict
-    weights: Tensor
+    field_outputs: Dict[Union[FieldHeadNames, str], Float[Tensor, "*bs num_samples channels"]]
+    """Per sample: density (`FieldHeadNames.DENSITY`) and each property's activated head output, by name."""
+    weights: Float[Tensor, "*bs num_samples 1"]
 
 
 @dataclass

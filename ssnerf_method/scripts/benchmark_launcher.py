@@ -4,8 +4,9 @@
 
 On an idle machine, one after the other:
 
-- `ssnerf-benchmark --quick` with the local launcher and with `--launcher ray` (a local Ray instance with every core
-  of this machine, `--cpus-per-run 1`), each into a fresh folder: the whole command's wall clock;
+- `ssnerf-benchmark --quick` with the local launcher (torch's default threads: every core) and with `--launcher ray`
+  (a local Ray instance with every core of this machine, `--cpus-per-run 1`: one single-threaded worker per core),
+  each into a fresh folder: the whole command's wall clock;
 - the per-run cost of a Ray task: `--tasks` jobs that do nothing, through the same launcher (pickling the job,
   scheduling it, redirecting its output to its log, its `.running` record), after the Ray instance has started;
   the start of the instance is reported on its own.
@@ -43,8 +44,10 @@ class BenchmarkLauncherConfig:
 
 
 def quick(folder: Path, *arguments: str) -> float:
-    """Seconds of one `ssnerf-benchmark --quick` in its own process."""
-    env = {**os.environ, "OMP_NUM_THREADS": "1", "RAY_AUTH_MODE": "disabled"}
+    """Seconds of one `ssnerf-benchmark --quick` in its own process, with torch's default threads (every core) in the
+    driver; Ray gives each worker the threads of its --cpus-per-run."""
+    env = {key: value for key, value in os.environ.items() if key != "OMP_NUM_THREADS"}
+    env["RAY_AUTH_MODE"] = "disabled"
     start = time.time()
     subprocess.run([sys.executable, "-m", "ssnerf_method.experiments.benchmark", "--quick", "--output", str(folder),
                     *arguments], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
