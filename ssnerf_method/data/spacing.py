@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Dict, Sequence
+from typing import Dict, Optional, Sequence
 
 import numpy as np
 from jaxtyping import Float
@@ -14,9 +14,11 @@ ANGLE_WEIGHT = 0.5
 """Metres per radian when ranking training views, as the Heuristic ranks them (`evaluation/heuristic.py`)."""
 
 
-def pose_spacing(train: Float[np.ndarray, "n 4 4"], test: Float[np.ndarray, "m 4 4"]) -> Dict[str, float]:
+def pose_spacing(train: Float[np.ndarray, "n 4 4"], test: Float[np.ndarray, "m 4 4"]) -> Dict[str, Optional[float]]:
     """Median over test views of the distance (metres) and angle (degrees) to the nearest training view, nearest by
     camera-centre distance + `ANGLE_WEIGHT` x the angle between viewing directions (camera-to-world, OpenGL)."""
+    if len(train) == 0 or len(test) == 0:
+        return {"median_m": None, "median_deg": None, "test_views": len(test)}
     centres = train[:, :3, 3]
     forwards = -train[:, :3, 2]
     distances, angles = [], []
@@ -37,11 +39,13 @@ def split_poses(meta: Dict, names: Sequence[str]) -> np.ndarray:
                      if Path(frame["file_path"]).name in wanted], dtype=np.float64).reshape(-1, 4, 4)
 
 
-def dataset_spacing(root: Path) -> Dict[str, float]:
-    """`pose_spacing` of a dataset's test split against its training split (from `transforms.json`'s split lists)."""
+def dataset_spacing(root: Path) -> Dict[str, Optional[float]]:
+    """`pose_spacing` of a dataset's test split against its training split: the splits as the dataparser makes them
+    (split lists, or nerfstudio's rule without them), the poses as `transforms.json` holds them (metres)."""
+    from ssnerf_method.data.dataparser import SSNeRFDataParserConfig  # the parser imports nerfstudio's data stack
+
+    parser = SSNeRFDataParserConfig(data=root).setup()
+    names = {split: [str(name) for name in parser.get_dataparser_outputs(split).image_filenames]
+             for split in ("train", "test")}
     meta = json.loads((root / "transforms.json").read_text())
-    test = meta.get("test_filenames") or meta.get("val_filenames") or []
-    held_out = {Path(name).name for name in test}
-    train = meta.get("train_filenames") or [frame["file_path"] for frame in meta["frames"]
-                                            if Path(frame["file_path"]).name not in held_out]
-    return pose_spacing(split_poses(meta, train), split_poses(meta, test))
+    return pose_spacing(split_poses(meta, names["train"]), split_poses(meta, names["test"]))

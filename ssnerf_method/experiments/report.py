@@ -140,11 +140,15 @@ def spacing_table(spacing: Dict[str, Dict]) -> str:
     scene, the same for the demo's loop scene of its seed)."""
     lines = ["| scene | test views | median distance to the nearest training view | median angle | "
              "the loop scene of the same seed |", "|---|---|---|---|---|"]
+    def where(values: Optional[Dict]) -> Tuple[str, str]:
+        if not values or values.get("median_m") is None:
+            return "–", "–"
+        return f"{values['median_m']:.2f} m", f"{values['median_deg']:.1f}°"
+
     for scene, values in spacing.items():
-        loop = values.get("loop")
-        beside = f"{loop['median_m']:.2f} m, {loop['median_deg']:.1f}°" if loop else "–"
-        lines.append(f"| {scene} | {values['test_views']} | {values['median_m']:.2f} m | {values['median_deg']:.1f}° | "
-                     f"{beside} |")
+        distance, angle = where(values)
+        loop = ", ".join(where(values.get("loop"))) if values.get("loop") else "–"
+        lines.append(f"| {scene} | {values['test_views']} | {distance} | {angle} | {loop} |")
     return "\n".join(lines)
 
 

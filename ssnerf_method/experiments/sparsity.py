@@ -109,6 +109,8 @@ class SparsityStudy(StudyConfig):
         """Per property: rows k (views), columns SS-NeRF / Heuristic / Hybrid (every reported measure in the JSON)."""
         texts, data = [], {}
         by_k = self.by_views(results)
+        output = self.benchmark_config().output
+        spacings = {name: scene_spacing(output / "limited" / name) for name in results}
         for prop in self.properties:
             rows = []
             for k, names in by_k.items():
@@ -117,9 +119,8 @@ class SparsityStudy(StudyConfig):
                     for column in columns_of([prop]):
                         row[f"{method} {column.key}"] = average(
                             [self.value(results[name], method, prop, column.metric) for name in names])
-                spacing = [scene_spacing(self.benchmark_config().output / "limited" / name) for name in names]
-                row["median distance (m)"] = average([values["median_m"] for values in spacing])
-                row["median angle (deg)"] = average([values["median_deg"] for values in spacing])
+                row["median distance (m)"] = average([spacings[name]["median_m"] for name in names])
+                row["median angle (deg)"] = average([spacings[name]["median_deg"] for name in names])
                 rows.append(row)
             data[prop] = rows
             lines = [f"{property_title(prop)}", "",
