@@ -7,9 +7,10 @@ cores enough (see ../shared/notes/cpu-speed.md in the project's notes).
 
 from __future__ import annotations
 
+from copy import deepcopy
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Optional
 
 import torch
 
@@ -120,6 +121,22 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
     viewer=ViewerConfig(num_rays_per_chunk=8192),
     vis="viewer+tensorboard",
 )
+
+
+
+def short_run(method: str, data: Path, output_dir: Path, steps: Optional[int] = None) -> TrainerConfig:
+    """A copy of `method`'s trainer config for a short run on `data`, as the demo and the benchmark train: its
+    `SHORT_RUN_STEPS` (or `steps`), TensorBoard logging instead of the viewer, one checkpoint at the end and no
+    evaluation while training (both evaluate the final checkpoint as `ns-eval` does)."""
+    trainer = deepcopy(ssnerf_config if method == "ssnerf" else ssnerf_lite_config)
+    steps = steps or SHORT_RUN_STEPS[method]
+    trainer.pipeline.datamanager.data = data  # type: ignore[attr-defined]
+    trainer.output_dir = output_dir
+    trainer.vis = "tensorboard"
+    trainer.max_num_iterations = trainer.steps_per_save = steps
+    trainer.steps_per_eval_image = trainer.steps_per_eval_all_images = trainer.steps_per_eval_batch = steps + 1
+    return trainer
+
 
 ssnerf = MethodSpecification(
     config=ssnerf_config,

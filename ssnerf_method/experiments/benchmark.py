@@ -40,7 +40,7 @@ from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch, write_atomically
 from ssnerf_method.experiments.report import write_report
-from ssnerf_method.method_configs import SHORT_RUN_STEPS, ssnerf_config, ssnerf_lite_config
+from ssnerf_method.method_configs import SHORT_RUN_STEPS, short_run
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertySpec, resolve_properties
 from ssnerf_method.rendering.depth import rendered_z_depth
 from ssnerf_method.rendering.palette import semantic_palette
@@ -187,21 +187,14 @@ class SceneBenchmark:
         return runs
 
     def trainer_config(self, run: ModelRun) -> TrainerConfig:
-        trainer = deepcopy(ssnerf_config if self.config.method == "ssnerf" else ssnerf_lite_config)
-        trainer.pipeline.datamanager.data = self.scene  # type: ignore[attr-defined]
+        trainer = short_run(self.config.method, self.scene, self.folder, self.steps)
         trainer.pipeline.model.properties = run.properties  # type: ignore[attr-defined]
         model = trainer.pipeline.model  # type: ignore[attr-defined]
         for key, value in run.overrides.items():  # a dict override adds to the method's (e.g. lite's losses)
             current = getattr(model, key)
             setattr(model, key, {**current, **value} if isinstance(current, dict) else deepcopy(value))
-        trainer.output_dir = self.folder
         trainer.experiment_name = run.name
         trainer.timestamp = self.tag
-        trainer.vis = "tensorboard"
-        trainer.max_num_iterations = self.steps
-        trainer.steps_per_save = self.steps
-        trainer.steps_per_eval_image = trainer.steps_per_eval_all_images = self.steps + 1
-        trainer.steps_per_eval_batch = self.steps + 1
         if self.config.lr_drop is not None:
             milestone = int(round(self.config.lr_drop * self.steps))
             for optimizer in trainer.optimizers.values():

@@ -11,7 +11,6 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from copy import deepcopy
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, Literal, Optional
@@ -30,7 +29,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.evaluation.figures import display_image, property_grid
 from ssnerf_method.evaluation.heuristic import nearest_view_copy
 from ssnerf_method.evaluation.scoring import score_predictor
-from ssnerf_method.method_configs import SHORT_RUN_STEPS, ssnerf_config, ssnerf_lite_config
+from ssnerf_method.method_configs import short_run
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_scene
 
@@ -123,15 +122,8 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
     method = config.method
     if method == "auto":
         method = "ssnerf" if torch.cuda.is_available() else "ssnerf-lite"
-    trainer_config = deepcopy(ssnerf_config if method == "ssnerf" else ssnerf_lite_config)
-    trainer_config.pipeline.datamanager.data = scene_dir
-    trainer_config.output_dir = config.output_dir / "runs"
+    trainer_config = short_run(method, scene_dir, config.output_dir / "runs", config.max_num_iterations)
     trainer_config.timestamp = "demo"
-    trainer_config.vis = "tensorboard"
-    trainer_config.max_num_iterations = config.max_num_iterations or SHORT_RUN_STEPS[method]
-    trainer_config.steps_per_save = trainer_config.max_num_iterations
-    trainer_config.steps_per_eval_image = trainer_config.max_num_iterations + 1
-    trainer_config.steps_per_eval_all_images = trainer_config.max_num_iterations + 1
     CONSOLE.rule(f"Training {method} for {trainer_config.max_num_iterations} steps on {scene_dir}")
     CONSOLE.print(
         f"(the same as: ns-train {method} --data {scene_dir} --max-num-iterations {trainer_config.max_num_iterations})"
