@@ -11,7 +11,8 @@ import numpy as np
 from jaxtyping import Float
 
 ANGLE_WEIGHT = 0.5
-"""Metres per radian when ranking training views, as the Heuristic ranks them (`evaluation/heuristic.py`)."""
+"""Scene units (metres here) per radian of viewing angle when ranking training views by nearness: the
+Heuristic's default (`evaluation/heuristic.py`) and this module's statistic."""
 
 
 def pose_spacing(train: Float[np.ndarray, "n 4 4"], test: Float[np.ndarray, "m 4 4"]) -> Dict[str, Optional[float]]:

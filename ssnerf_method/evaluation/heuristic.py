@@ -25,6 +25,7 @@ from torch import Tensor
 from nerfstudio.cameras.cameras import Cameras
 
 from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
+from ssnerf_method.data.spacing import ANGLE_WEIGHT
 from ssnerf_method.properties import PropertySpec
 
 
@@ -58,7 +59,7 @@ class PinholeView:
         return self.camera_to_world[:, 3]
 
 
-def pose_distance(a: PinholeView, b: PinholeView, angle_weight: float = 0.5) -> float:
+def pose_distance(a: PinholeView, b: PinholeView, angle_weight: float = ANGLE_WEIGHT) -> float:
     """Distance between camera centres (scene units) plus `angle_weight` x the angle between viewing directions
     (radians): the nearest view is close and looks the same way."""
     cosine = float(np.clip(np.dot(-a.rotation[:, 2], -b.rotation[:, 2]), -1.0, 1.0))
@@ -66,7 +67,7 @@ def pose_distance(a: PinholeView, b: PinholeView, angle_weight: float = 0.5) -> 
 
 
 def nearest_view_copy(
-    train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, angle_weight: float = 0.5
+    train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, angle_weight: float = ANGLE_WEIGHT
 ) -> Callable[[Cameras, int], Dict[str, Tensor]]:
     """A predictor that copies the labels (RGB included) of the training view nearest to each camera, ranked as the
     Heuristic ranks its sources, with no warp: the floor every method should beat (the demo's "nearest training
@@ -144,7 +145,7 @@ class HeuristicBaselineConfig:
 
     num_source_views: int = 2
     """Training views splatted in turn, nearest first (the rest of the holes take the nearest filled pixel)."""
-    angle_weight: float = 0.5
+    angle_weight: float = ANGLE_WEIGHT
     """Scene units of camera-centre distance one radian of viewing-direction difference counts for."""
 
 

@@ -163,7 +163,7 @@ def scene_spacing(scene: Path) -> Dict[str, Any]:
     if generator and generator.get("trajectory") not in (None, "loop"):
         loop = MakeSceneConfig(output_dir=scene, seed=generator["seed"])
         poses = np.stack(camera_path("loop", loop.num_frames, loop.seed))  # type: ignore[arg-type]
-        held_out = np.arange(len(poses)) % loop.test_every == loop.test_offset  # type: ignore[operator]
+        held_out = np.array([loop.is_test(frame) for frame in range(len(poses))])
         spacing["loop"] = pose_spacing(poses[~held_out], poses[held_out])
     return spacing
 

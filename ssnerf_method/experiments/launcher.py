@@ -144,8 +144,9 @@ def launch(settings: LauncherOptions, jobs: Sequence[Job]) -> Dict[str, Dict[str
 
 def run_job(job: Job, *_needed: Any) -> None:
     """A job as a Ray worker runs it: console output appended to its log (file descriptors 1 and 2, so that
-    nerfstudio's and torch's output go there too), a `.running` record while it runs, the failure record of an
-    earlier call removed when it succeeds. `_needed` are the results of the jobs it needs (Ray waits for them)."""
+    nerfstudio's and torch's output go there too) and a `.running` record while it runs (the launcher removes an
+    earlier call's records before it submits). `_needed` are the results of the jobs it needs (Ray waits for
+    them)."""
     import torch
 
     threads = os.environ.get("OMP_NUM_THREADS")  # Ray sets it to the task's CPUs

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from ssnerf_method.data.spacing import ANGLE_WEIGHT
 from ssnerf_method.evaluation.metrics import METRICS
 from ssnerf_method.properties import REGISTRY
 
@@ -167,8 +168,9 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
         f"# SS-NeRF benchmark ({training_words(method, steps, lr_drop)})",
         f"Scenes: {', '.join(results)}. Metrics on each scene's test split, as `ns-eval` computes them "
         "(mIoU from the accumulated confusion matrix, L1 over all labelled pixels).",
-        ("How far the test views are from the training views (nearest by centre distance + 0.5 m per radian, as the "
-         "Heuristic ranks them):\n\n" + spacing_table(spacing)) if spacing else "",
+        ("How far the test views are from the training views (nearest by centre distance + "
+         f"{ANGLE_WEIGHT:g} m per radian, as the Heuristic ranks them):\n\n" + spacing_table(spacing))
+        if spacing else "",
         "## Table 1: scene properties",
         property_table(first, properties),
         f"SS-NeRF (average) {summary}." if summary else "",

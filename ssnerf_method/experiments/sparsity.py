@@ -27,7 +27,7 @@ from ssnerf_method.experiments.benchmark import (
 from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import average, cell, columns_of, headline, property_title
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
-from ssnerf_method.experiments.transfer import make_limited_dataset
+from ssnerf_method.experiments.transfer import limited_scene
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
@@ -35,6 +35,11 @@ METHODS = {"SS-NeRF": None, "Heuristic": "heuristic", "Hybrid": "hybrid"}
 """Columns of the study: SS-NeRF (each property from its own model) and the two baselines (their rows' names)."""
 DENSE_FRAMES = 56
 """Frames of the default dense sequence: every 8th held out leaves 49 training views, enough for k = 48."""
+
+
+def jobs_of(benches: Dict[str, Tuple[Path, int, SceneBenchmark]]) -> List[Job]:
+    """Every k-view copy's models and baselines as launcher jobs."""
+    return [job for _, _, bench in benches.values() for job in bench.jobs()]
 
 
 @dataclass
@@ -72,14 +77,12 @@ class SparsityStudy(StudyConfig):
         rows = {}
         for scene in self.sequences(config):
             for k in self.chosen_views():
-                root = config.output / "limited" / f"{scene.name}-{k}views"
-                if not (root / "transforms.json").is_file():
-                    make_limited_dataset(scene, root, k)
+                root = limited_scene(config.output, scene, k)
                 rows[root.name] = (scene, k, SceneBenchmark(config, root, root.name))
         return rows
 
     def jobs(self, config: BenchmarkConfig, scenes: List[Path]) -> List[Job]:
-        return [job for _, _, bench in self.benchmarks(config).values() for job in bench.jobs()]
+        return jobs_of(self.benchmarks(config))
 
     def run(self) -> Results:
         """Every k-view copy's Table 1, then the study's tables and figure."""
@@ -87,13 +90,13 @@ class SparsityStudy(StudyConfig):
         config = self.benchmark_config()
         config.output.mkdir(parents=True, exist_ok=True)
         benches = self.benchmarks(config)
-        launch(config, [job for _, _, bench in benches.values() for job in bench.jobs()])
+        launch(config, jobs_of(benches))
         results: Results = {}
         details: Dict[str, Any] = {}
         for name, (scene, k, bench) in benches.items():
             CONSOLE.print(f"[bold]sparsity study: {scene.name} with {k} training views")
             results[name] = bench.run()
-            details[name] = {"scene": scene.name, "views": k, "spacing": scene_spacing(bench.scene),
+            details[name] = {"scene": scene.name, "views": k,  # its spacing is in the tables
                              **{run: {key: metrics.get(key) for key in RUN_RECORD}
                                 for run, metrics in results[name].items() if run not in BASELINES}}
         self.figure(results, config.output / "figure_sparsity.png")

@@ -66,6 +66,15 @@ def make_limited_dataset(scene: Path, destination: Path, k: int) -> List[str]:
     return chosen
 
 
+def limited_scene(output: Path, scene: Path, k: int) -> Path:
+    """`OUTPUT/limited/<scene>-<k>views`: the scene's k-view copy (`make_limited_dataset`), made once and shared by
+    the studies that train on k views (transfer, sparsity)."""
+    root = output / "limited" / f"{scene.name}-{k}views"
+    if not (root / "transforms.json").is_file():
+        make_limited_dataset(scene, root, k)
+    return root
+
+
 @dataclass
 class TransferStudy(StudyConfig):
     """Table 5: the target property on k views, from scratch and with F_enc transferred from each source."""
@@ -92,9 +101,7 @@ class TransferStudy(StudyConfig):
 
     def benchmarks(self, config: BenchmarkConfig, scene: Path) -> Tuple[SceneBenchmark, SceneBenchmark]:
         """The scene with all its views (the sources) and its k-view copy (the target), made once."""
-        limited_root = config.output / "limited" / f"{scene.name}-{self.views}views"
-        if not (limited_root / "transforms.json").is_file():
-            make_limited_dataset(scene, limited_root, self.views)
+        limited_root = limited_scene(config.output, scene, self.views)
         return SceneBenchmark(config, scene, scene.name), SceneBenchmark(config, limited_root, limited_root.name)
 
     def transfer_runs(self, full: SceneBenchmark, source: str) -> Tuple[ModelRun, ModelRun]:

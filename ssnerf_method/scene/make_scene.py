@@ -114,6 +114,10 @@ class MakeSceneConfig:
         elif self.test_offset is None:
             self.test_offset = self.test_every // 2 if self.trajectory == "loop" else 0
 
+    def is_test(self, frame: int) -> bool:
+        """Whether frame `frame` is held out (a test and val frame)."""
+        return frame % self.test_every == self.test_offset  # type: ignore[operator]
+
 
 @dataclass
 class RenderedView:
@@ -294,7 +298,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
             cv2.imwrite(str(config.output_dir / label / name), image)
             frame[REGISTRY[label].file_key if label in REGISTRY else DEPTH_FILE_KEY] = f"{label}/{name}"
         frames.append(frame)
-        (test if i % config.test_every == config.test_offset else train).append(frame["file_path"])
+        (test if config.is_test(i) else train).append(frame["file_path"])
 
     transforms = {
         "camera_model": "OPENCV",
