@@ -24,16 +24,13 @@ from nerfstudio.model_components.renderers import NormalsRenderer, RGBRenderer, 
 from nerfstudio.utils import colormaps
 
 from ssnerf_method.errors import UserError
-from ssnerf_method.labels.encoding import decode_normals, encode_normals
+from ssnerf_method.labels.encoding import SEMANTIC_IGNORE, decode_normals, encode_normals
 
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
 
 LossName = Literal["mse", "l1", "cross_entropy"]
 """Names of the losses in `ssnerf_method/model/losses.py`."""
-
-SEMANTIC_IGNORE = 255
-"""Class id of an unlabelled pixel on disk; its rays carry no semantic loss."""
 
 
 NORMAL_LENGTH_TOLERANCE = 0.1

@@ -16,8 +16,8 @@ from nerfstudio.utils.eval_utils import eval_setup
 from ssnerf_method.data.camera_path import interpolate_poses
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
-from ssnerf_method.data.export_dataset import ExportDatasetConfig, export_dataset
 from ssnerf_method.data.io import DatasetInputError
+from ssnerf_method.export.dataset import ExportDatasetConfig, export_dataset
 
 
 def test_interpolated_poses_are_proper_rotations_between_the_ends() -> None:

@@ -29,7 +29,7 @@ from ssnerf_method.data.importers import (
 from ssnerf_method.data.importers.paper_llff import convert_normals, normals_axes_conversion
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labels.label_dataset import LabelDatasetConfig, label_dataset
+from ssnerf_method.labelling.label_dataset import LabelDatasetConfig, label_dataset
 from ssnerf_method.scripts.import_data import main
 
 from source_layouts import (

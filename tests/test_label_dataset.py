@@ -20,9 +20,9 @@ from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
+from ssnerf_method.labelling.label_dataset import KEPT, LABEL_FOLDER, LABELLED, LabelDatasetConfig, label_dataset
 from ssnerf_method.labels import canny_edges
 from ssnerf_method.labels.keypoints import keypoint_label
-from ssnerf_method.labels.label_dataset import KEPT, LABEL_FOLDER, LABELLED, LabelDatasetConfig, label_dataset
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 from ssnerf_method.scripts.label import main

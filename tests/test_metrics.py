@@ -14,7 +14,7 @@ import pytest
 import torch
 import torch.nn.functional as F
 
-from ssnerf_method.evaluation.metrics import METRICS, add_statistics, histogram_median
+from ssnerf_method.metrics import METRICS, add_statistics, histogram_median
 from ssnerf_method.properties import SEMANTIC_IGNORE, ClassKind, NormalKind, ScalarKind
 
 ALL = torch.ones(2, 2, dtype=torch.bool)

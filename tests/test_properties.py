@@ -14,9 +14,9 @@ from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.model_components.ray_samplers import UniformSampler
 
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
-from ssnerf_method.evaluation.metrics import METRICS
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder
 from ssnerf_method.fields.ssnerf_field import SSNeRFField
+from ssnerf_method.metrics import METRICS
 from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,

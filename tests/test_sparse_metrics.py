@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from ssnerf_method.evaluation.metrics import METRICS, SPARSE_THRESHOLDS, add_statistics, local_maxima
+from ssnerf_method.metrics import METRICS, SPARSE_THRESHOLDS, add_statistics, local_maxima
 
 HEIGHT, WIDTH = 40, 50
 EVERYWHERE = torch.ones(HEIGHT, WIDTH, dtype=torch.bool)

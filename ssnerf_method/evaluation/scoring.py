@@ -9,7 +9,7 @@ from torch import Tensor
 from nerfstudio.cameras.cameras import Cameras
 
 from ssnerf_method.data.dataset import SSNeRFDataset
-from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics, summarize
+from ssnerf_method.metrics import METRICS, Statistics, add_statistics, summarize
 from ssnerf_method.properties import PropertySpec
 
 Predictor = Callable[[Cameras, int], Dict[str, Tensor]]
@@ -19,7 +19,7 @@ Predictor = Callable[[Cameras, int], Dict[str, Tensor]]
 def score_predictor(
     predict: Predictor, dataset: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int
 ) -> Dict[str, float]:
-    """Split-level metrics (`evaluation.metrics`) of `predict` on every view of `dataset`, for the properties it
+    """Split-level metrics (`metrics`) of `predict` on every view of `dataset`, for the properties it
     predicts among `specs`."""
     totals: Dict[str, Statistics] = {}
     for index in range(len(dataset)):

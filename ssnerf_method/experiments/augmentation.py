@@ -28,7 +28,6 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
-from ssnerf_method.data.export_dataset import ExportDatasetConfig, export_dataset
 from ssnerf_method.errors import UserError
 from ssnerf_method.evaluation.figures import image_grid, shown, shown_label
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
@@ -37,6 +36,7 @@ from ssnerf_method.experiments.benchmark import ModelRun, SceneBenchmark, genera
 from ssnerf_method.experiments.launcher import launch
 from ssnerf_method.experiments.report import average, columns_of, property_columns, property_table
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
+from ssnerf_method.export.dataset import ExportDatasetConfig, export_dataset
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.rendering.palette import semantic_palette
 

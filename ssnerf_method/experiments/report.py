@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
 from ssnerf_method.data.spacing import ANGLE_WEIGHT
-from ssnerf_method.evaluation.metrics import METRICS
+from ssnerf_method.metrics import METRICS
 from ssnerf_method.properties import REGISTRY
 
 Results = Dict[str, Dict[str, Dict[str, float]]]

@@ -25,8 +25,7 @@ import numpy as np
 from jaxtyping import Float, UInt8
 from scipy import ndimage
 
-from ssnerf_method.labels.encoding import decode_normals, encode_normals
-from ssnerf_method.properties import SEMANTIC_IGNORE
+from ssnerf_method.labels.encoding import SEMANTIC_IGNORE, decode_normals, encode_normals
 
 
 def corrupt_semantics(

@@ -1,4 +1,5 @@
-"""How labels are stored: 8-bit values of [0, 1], and unit normals n as (n + 1) / 2 in [0, 1] (numpy or torch)."""
+"""How labels are stored: 8-bit values of [0, 1], unit normals n as (n + 1) / 2 in [0, 1] (numpy or torch), and
+class ids with one id for "unlabelled"."""
 
 from __future__ import annotations
 
@@ -7,6 +8,9 @@ from typing import TypeVar
 import numpy as np
 
 Values = TypeVar("Values")
+
+SEMANTIC_IGNORE = 255
+"""Class id of an unlabelled pixel in a semantic label file; its rays carry no semantic loss."""
 
 
 def to_uint8(values: np.ndarray) -> np.ndarray:

@@ -27,9 +27,9 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataset import DEPTH_KEY
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY, add_pose_metadata
-from ssnerf_method.evaluation.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
 from ssnerf_method.fields.ssnerf_field import DecoderSharing, SSNeRFField
+from ssnerf_method.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.model.encoder_transfer import encoder_modules, load_encoders
 from ssnerf_method.model.loss_balancing import LossBalancer
 from ssnerf_method.model.losses import LOSSES
@@ -358,7 +358,7 @@ class SSNeRFModel(Model):
         return statistics
 
     def metrics_from_statistics(self, statistics: Dict[str, Statistics]) -> Dict[str, float]:
-        """Named metrics from statistics of one image or summed over a split (`evaluation.metrics.summarize`)."""
+        """Named metrics from statistics of one image or summed over a split (`metrics.summarize`)."""
         return summarize(statistics, self.specs)
 
     def get_image_metrics_and_images(

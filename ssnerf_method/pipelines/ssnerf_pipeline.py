@@ -25,7 +25,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
 from ssnerf_method.errors import UserError
-from ssnerf_method.evaluation.metrics import METRICS, Statistics, add_statistics
+from ssnerf_method.metrics import METRICS, Statistics, add_statistics
 
 
 @dataclass

@@ -23,7 +23,7 @@ from rich.table import Table
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labels.label_dataset import LABELLERS, LabelDatasetConfig, label_dataset
+from ssnerf_method.labelling.label_dataset import LABELLERS, LabelDatasetConfig, label_dataset
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 

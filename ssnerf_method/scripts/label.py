@@ -11,7 +11,7 @@ from nerfstudio.utils.rich_utils import CONSOLE, get_progress
 
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.errors import UserError, exit_with
-from ssnerf_method.labels.label_dataset import KEPT, LABELLED, LabelDatasetConfig, LabelReport, label_dataset
+from ssnerf_method.labelling.label_dataset import KEPT, LABELLED, LabelDatasetConfig, LabelReport, label_dataset
 
 
 def report_table(report: LabelReport, num_frames: int) -> Table:
