@@ -25,6 +25,14 @@ from nerfstudio.utils import colormaps
 
 from ssnerf_method.errors import UserError
 from ssnerf_method.labels.encoding import SEMANTIC_IGNORE, decode_normals, encode_normals
+from ssnerf_method.labels.makers import (
+    CannyEdges,
+    KeypointMap,
+    LabelMaker,
+    LambertianShading,
+    NormalsFromDepth,
+    SemanticsCopy,
+)
 
 Branch = Literal["v", "nv"]
 """Decoder branch: `v` sees the view direction (F_dec^v), `nv` does not (F_dec^nv)."""
@@ -383,6 +391,8 @@ class PropertySpec:
     """Display colour mapping of a one-channel map (a nerfstudio colormap name); "default" for images in colour."""
     corruption: Literal["classes", "dense", "sparse", "none"] = "none"
     """How weak labels of it are made for the auto-labelling study (`labels/corruptions.py`)."""
+    label_maker: Optional[LabelMaker] = None
+    """How its label is made from a frame (`labels/makers.py`): by `ssnerf-label` and by the scene generator."""
 
     @property
     def prediction_key(self) -> str:
@@ -421,20 +431,30 @@ REGISTRY: Dict[str, PropertySpec] = {
         PropertySpec(name="rgb", short="RGB", kind=ColorKind(), file_key=None, branch="v", loss="mse", weight=1.0,
                      metric="psnr", colormap="default"),
         PropertySpec(name="semantics", short="SL", kind=ClassKind(), file_key="semantics_file_path", branch="nv",
-                     loss="cross_entropy", weight=0.04, metric="miou", colormap="default", corruption="classes"),
+                     loss="cross_entropy", weight=0.04, metric="miou", colormap="default", corruption="classes",
+                     label_maker=SemanticsCopy()),
         PropertySpec(name="normals", short="SN", kind=NormalKind(), file_key="normals_file_path", branch="nv",
-                     loss="mse", weight=1.0, metric="normal", colormap="default", corruption="dense"),
+                     loss="mse", weight=1.0, metric="normal", colormap="default", corruption="dense",
+                     label_maker=NormalsFromDepth()),
         PropertySpec(name="shading", short="SH", kind=ScalarKind("sigmoid"), file_key="shading_file_path", branch="v",
-                     loss="l1", weight=0.1, metric="l1", colormap="gray", corruption="dense"),
+                     loss="l1", weight=0.1, metric="l1", colormap="gray", corruption="dense",
+                     label_maker=LambertianShading()),
         PropertySpec(name="keypoints", short="KP", kind=ScalarKind("sigmoid"), file_key="keypoints_file_path",
-                     branch="v", loss="l1", weight=2.0, metric="keypoint", colormap="gray", corruption="sparse"),
+                     branch="v", loss="l1", weight=2.0, metric="keypoint", colormap="gray", corruption="sparse",
+                     label_maker=KeypointMap()),
         PropertySpec(name="edges", short="ED", kind=ScalarKind("sigmoid"), file_key="edges_file_path", branch="v",
-                     loss="l1", weight=0.4, metric="edge", colormap="gray", corruption="sparse"),
+                     loss="l1", weight=0.4, metric="edge", colormap="gray", corruption="sparse",
+                     label_maker=CannyEdges()),
     )
 }
 """Every property the plugin knows. RGB is always rendered; the others are optional."""
 
 OPTIONAL_PROPERTIES: Tuple[str, ...] = tuple(name for name in REGISTRY if name != "rgb")
+
+
+def labelled_properties() -> List[PropertySpec]:
+    """The properties a label maker can make, in the order they run (registry order: a maker's sources first)."""
+    return [spec for spec in REGISTRY.values() if spec.label_maker is not None]
 
 
 def resolve_properties(

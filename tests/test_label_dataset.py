@@ -20,9 +20,11 @@ from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labelling.label_dataset import KEPT, LABEL_FOLDER, LABELLED, LabelDatasetConfig, label_dataset
+from ssnerf_method.labelling.label_dataset import KEPT, LABELLED, LabelDatasetConfig, label_dataset
+from ssnerf_method.labelling.paths import LABEL_FOLDER
 from ssnerf_method.labels import canny_edges
 from ssnerf_method.labels.keypoints import keypoint_label
+from ssnerf_method.labels.makers import LabelOptions
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 from ssnerf_method.scripts.label import main
@@ -148,7 +150,8 @@ def test_low_resolution_npy_depth_like_record3d(scene: Path, tmp_path: Path) -> 
 def test_switches_and_new_output_file(scene: Path, tmp_path: Path) -> None:
     data = strip_labels(scene, tmp_path / "data")
     before = snapshot(data)
-    report = run(data, output="transforms_labelled.json", keypoints=False, shading=False, canny_low=20, canny_high=40)
+    report = run(data, output="transforms_labelled.json", keypoints=False, shading=False,
+                 label_options=LabelOptions(canny_low=20, canny_high=40))
     assert set(report.outcomes) == {"semantics", "normals", "edges"}
     assert snapshot(data)["transforms.json"] == before["transforms.json"]
     assert not (data / "transforms.json.orig").exists()

@@ -13,7 +13,6 @@ RGB). Output is deterministic for a seed.
 
 from __future__ import annotations
 
-import json
 import shutil
 import sys
 import time
@@ -21,19 +20,18 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Literal, Optional
 
-import cv2
 import numpy as np
 import tyro
 
 from ssnerf_method.data.camera_path import to_model_frame, write_camera_path
 from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
-from ssnerf_method.labels.edges import canny_edges
-from ssnerf_method.labels.encoding import encode_normals, to_uint8
-from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
-from ssnerf_method.labels.normals import normals_from_depth
-from ssnerf_method.labels.shading import lambertian_shading
-from ssnerf_method.properties import REGISTRY
+from ssnerf_method.data.importers.writer import DatasetWriter, centred_pinhole
+from ssnerf_method.labels.encoding import to_uint8
+from ssnerf_method.labels.keypoints import Detector, KeypointLabel
+from ssnerf_method.labels.makers import FrameSources, LabelOptions
+from ssnerf_method.labels.shading import camera_ray_directions
+from ssnerf_method.properties import labelled_properties
 from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import Room, build_room
 
@@ -62,10 +60,7 @@ SPLITS: Dict[str, Dict[str, int]] = {
 i % test_every == test_offset): the loop's every 5th from frame 2; the walkthrough's every 8th from frame 0, as the
 paper's released scenes (50 frames, `llffhold = 8`)."""
 
-DEPTH_FILE_KEY = "depth_file_path"
-"""nerfstudio's per-frame key of the depth map (depth is not a registry property)."""
-
-LABEL_DIRS = ("images", "depth", "semantics", "normals", "shading", "keypoints", "edges")
+LABEL_DIRS = ("images", "depth", *(spec.name for spec in labelled_properties()))
 """Sub-folders written per frame; `images` holds RGB, the others the label of the same name."""
 
 
@@ -244,15 +239,23 @@ def render_view(room: Room, camera: PinholeCamera) -> RenderedView:
     )
 
 
-def normal_label(view: RenderedView, depth: np.ndarray, k: Dict[str, float], kind: NormalsLabel) -> np.ndarray:
-    """The frame's 8-bit normal label: the exact normals, or those of the written (millimetre) depth map, as the
-    paper derived its normals from depth, with alpha 0 where they are undefined."""
-    if kind == "exact":
-        return to_uint8(encode_normals(view.normals))
-    normals = normals_from_depth(depth.astype(np.float64) / 1000.0, k["fl_x"], k["fl_y"], k["cx"], k["cy"])
-    labelled = np.isfinite(normals).all(axis=-1)
-    image = to_uint8(encode_normals(np.nan_to_num(normals)))
-    return np.concatenate([image, np.where(labelled, 255, 0).astype(np.uint8)[..., None]], axis=-1)
+def label_options(config: MakeSceneConfig) -> LabelOptions:
+    """The label makers' settings for the generated scene: the default thresholds, the keypoint label chosen, and the
+    normal label from the ray caster's exact normals or from the written depth map."""
+    return LabelOptions(
+        canny_low=EDGE_THRESHOLDS[0], canny_high=EDGE_THRESHOLDS[1], keypoint_label=config.keypoint_label,
+        keypoint_detector=KEYPOINT_DETECTOR, keypoint_sigma=KEYPOINT_SIGMA,
+        normals_source="exact" if config.normals == "exact" else "depth", semantics_from="the ray caster's class ids",
+    )
+
+
+def view_sources(view: RenderedView, rgb: np.ndarray, depth: np.ndarray, k: Dict[str, float]) -> FrameSources:
+    """What the label makers read of a rendered frame: the written RGB and millimetre depth, the true normals (the
+    shading label's, and the normal label's when exact) and the ray caster's class ids."""
+    height, width = rgb.shape[:2]
+    rays = camera_ray_directions(height, width, k["fl_x"], k["fl_y"], k["cx"], k["cy"])
+    return FrameSources(rgb=rgb, rays=lambda scale: rays, depth=lambda: depth.astype(np.float64),
+                        normals=view.normals, semantics=lambda: view.semantics)
 
 
 def _prepare_output_dir(output_dir: Path, overwrite: bool) -> None:
@@ -274,67 +277,35 @@ def make_scene(config: MakeSceneConfig) -> Path:
     _prepare_output_dir(config.output_dir, config.overwrite)
     room = build_room(config.seed)
     k = intrinsics(config.width, config.height)
-    frames = []
+    options = label_options(config)
+    writer = DatasetWriter(config.output_dir)
     train, test = [], []
     for i, pose in enumerate(camera_path(config.trajectory, config.num_frames, config.seed)):
         camera = PinholeCamera(config.width, config.height, k["fl_x"], k["fl_y"], k["cx"], k["cy"], pose)
         view = render_view(room, camera)
         rgb = to_uint8(view.rgb)
         depth = np.round(np.clip(view.depth * 1000.0, 0, 65535)).astype(np.uint16)
-        labels = {
-            "depth": depth,
-            "semantics": view.semantics,
-            "normals": normal_label(view, depth, k, config.normals),
-            "shading": to_uint8(lambertian_shading(view.normals, k["fl_x"], k["fl_y"], k["cx"], k["cy"])),
-            "keypoints": to_uint8(keypoint_label(rgb, config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR)),
-            "edges": to_uint8(canny_edges(rgb, *EDGE_THRESHOLDS)),
-        }
-        name = f"frame_{i:05d}.png"
-        frame = {"file_path": f"images/{name}", "transform_matrix": pose.tolist()}
-        cv2.imwrite(str(config.output_dir / "images" / name), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-        for label, image in labels.items():
-            if image.ndim == 3:
-                image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR if image.shape[2] == 3 else cv2.COLOR_RGBA2BGRA)
-            cv2.imwrite(str(config.output_dir / label / name), image)
-            frame[REGISTRY[label].file_key if label in REGISTRY else DEPTH_FILE_KEY] = f"{label}/{name}"
-        frames.append(frame)
-        (test if config.is_test(i) else train).append(frame["file_path"])
+        sources = view_sources(view, rgb, depth, k)
+        labels = {"depth": depth, **{spec.name: spec.label_maker.make(sources, options)
+                                     for spec in labelled_properties()}}
+        file_path = writer.add_frame(i, rgb, pose, labels)
+        (test if config.is_test(i) else train).append(file_path)
 
-    transforms = {
-        "camera_model": "OPENCV",
-        **k,
-        "w": config.width,
-        "h": config.height,
-        "k1": 0.0,
-        "k2": 0.0,
-        "p1": 0.0,
-        "p2": 0.0,
-        "semantic_classes": list(SEMANTIC_CLASSES),
-        "semantic_colors": [list(color) for color in SEMANTIC_COLORS],
-        "train_filenames": train,
-        "val_filenames": test,
-        "test_filenames": test,
-        "ssnerf_scene": {
-            "generator": "ssnerf-make-scene",
-            "seed": config.seed,
-            "trajectory": config.trajectory,
-            "num_frames": config.num_frames,
-            "test_every": config.test_every,
-            "test_offset": config.test_offset,
-            "hfov_deg": HFOV_DEG,
-            "depth_unit": "millimetre z-depth (distance along the camera's viewing axis)",
-            "normals_frame": "camera, OpenGL axes (x right, y up, z towards the viewer), stored as (n + 1) / 2 * 255",
-            "normals": "the ray caster's exact normals" if config.normals == "exact" else (
-                "finite differences of the written depth map (ssnerf-label's normals_from_points); alpha 0 where "
-                "no usable difference (depth discontinuities)"),
-            "shading": "Lambertian, point light at the camera centre: clip(dot(n, -view_dir), 0, 1)",
-            "keypoints": describe_keypoint_label(config.keypoint_label, KEYPOINT_SIGMA, KEYPOINT_DETECTOR),
-            "edges": f"Canny on the 8-bit grey RGB, thresholds {EDGE_THRESHOLDS[0]:g} / {EDGE_THRESHOLDS[1]:g}",
-        },
-        "frames": frames,
+    provenance = {
+        "generator": "ssnerf-make-scene",
+        "seed": config.seed,
+        "trajectory": config.trajectory,
+        "num_frames": config.num_frames,
+        "test_every": config.test_every,
+        "test_offset": config.test_offset,
+        "hfov_deg": HFOV_DEG,
+        "depth_unit": "millimetre z-depth (distance along the camera's viewing axis)",
+        **{spec.name: spec.label_maker.describe(options) for spec in labelled_properties()},
     }
-    path = config.output_dir / "transforms.json"
-    path.write_text(json.dumps(transforms, indent=2) + "\n")
+    path = writer.write_transforms(
+        centred_pinhole(k["fl_x"], config.width, config.height),
+        {"train": train, "val": test, "test": test}, provenance, SEMANTIC_CLASSES, SEMANTIC_COLORS, "ssnerf_scene",
+    )
     if config.path_frames > 0:
         write_fly_through(config, k["fl_y"])
     return path

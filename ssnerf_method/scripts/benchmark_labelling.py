@@ -23,8 +23,8 @@ from rich.table import Table
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labelling.label_dataset import LABELLERS, LabelDatasetConfig, label_dataset
-from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
+from ssnerf_method.labelling.label_dataset import LabelDatasetConfig, label_dataset
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, labelled_properties
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
 
@@ -61,15 +61,16 @@ def timed_run(data: Path, name: str, workers: int, **switches: bool) -> float:
 def main(config: BenchmarkLabellingConfig) -> Dict[str, float]:
     with tempfile.TemporaryDirectory() as folder:
         data = unlabelled_scene(Path(folder) / "scene", config)
-        timed_run(data, "warmup", 1, **{kind: kind == "edges" for kind in LABELLERS})  # imports, lazy init
+        specs = labelled_properties()
+        timed_run(data, "warmup", 1, **{spec.name: spec is specs[-1] for spec in specs})  # imports, lazy init
         seconds = {}
-        for kind in LABELLERS:
-            if kind == "semantics":
-                continue  # never derived: a copy
-            # shading needs normals: its row is normals + shading minus the normals row
-            switches = {other: other == kind or (kind == "shading" and other == "normals") for other in LABELLERS}
-            seconds[kind] = timed_run(data, kind, 1, **switches)
-        seconds["shading"] -= seconds["normals"]
+        for spec in specs:
+            if spec.kind.categorical:
+                continue  # class ids are never derived: a copy
+            # a maker reading another's output (shading reads normals) is timed with it, minus that one's own time
+            helpers = [other for other in specs if other.label_maker.provides in spec.label_maker.reads]
+            switches = {other.name: other is spec or other in helpers for other in specs}
+            seconds[spec.name] = timed_run(data, spec.name, 1, **switches) - sum(seconds[h.name] for h in helpers)
         seconds[f"all kinds, {config.workers} workers"] = timed_run(data, "all", config.workers)
     table = Table(title=f"ssnerf-label, {config.num_frames} frames of {config.width}x{config.height}")
     table.add_column("labels")
