@@ -10,7 +10,10 @@ from typing import Callable, Dict, Tuple
 
 import numpy as np
 import pytest
+import torch
 from PIL import Image
+
+from ssnerf_method.properties import REGISTRY, PropertySpec, RenderContext
 
 CLASSES = ["void", "wall", "floor", "table"]
 WIDTH, HEIGHT = 16, 12
@@ -28,11 +31,20 @@ def look_at(position: np.ndarray, target: np.ndarray) -> np.ndarray:
     return c2w
 
 
+def random_label(spec: PropertySpec, rng: np.random.Generator, num_classes: int) -> np.ndarray:
+    """A random label of `spec` in its file encoding: its kind's rendering of random per-sample outputs (whatever a
+    field renders is a valid label), so a new property's fixture needs nothing here."""
+    raw = torch.from_numpy(rng.normal(size=(HEIGHT * WIDTH, 1, spec.kind.head_channels(num_classes)))).float()
+    prediction = spec.kind.render(spec.kind.activation(raw), torch.ones(HEIGHT * WIDTH, 1, 1), RenderContext())
+    return spec.kind.encode(prediction.reshape(HEIGHT, WIDTH, -1))
+
+
 def write_tiny_dataset(root: Path, num_frames: int = 6, seed: int = 0) -> Dict:
-    """Write `num_frames` random 16x12 frames with every property (random unit normals); returns the transforms
-    dict."""
+    """Write `num_frames` random 16x12 frames with every registry property (`random_label`, in `<name>/`) and a
+    depth map; returns the transforms dict."""
     rng = np.random.default_rng(seed)
-    for folder in ("images", "semantics", "normals", "shading", "keypoints", "edges", "depth"):
+    labelled = [spec for spec in REGISTRY.values() if spec.file_key is not None]
+    for folder in ("images", "depth", *(spec.name for spec in labelled)):
         (root / folder).mkdir(parents=True, exist_ok=True)
     frames = []
     for index in range(num_frames):
@@ -40,26 +52,12 @@ def write_tiny_dataset(root: Path, num_frames: int = 6, seed: int = 0) -> Dict:
         angle = 2 * np.pi * index / num_frames
         c2w = look_at(np.array([np.cos(angle), np.sin(angle), 0.2]), np.zeros(3))
         Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH, 3), dtype=np.uint8)).save(root / "images" / name)
-        Image.fromarray(rng.integers(0, len(CLASSES), (HEIGHT, WIDTH), dtype=np.uint8)).save(root / "semantics" / name)
-        normals = rng.normal(size=(HEIGHT, WIDTH, 3))
-        normals /= np.linalg.norm(normals, axis=-1, keepdims=True)
-        encoded = np.round((normals + 1.0) / 2.0 * 255.0).astype(np.uint8)
-        Image.fromarray(encoded).save(root / "normals" / name)
-        for folder in ("shading", "keypoints", "edges"):
-            Image.fromarray(rng.integers(0, 255, (HEIGHT, WIDTH), dtype=np.uint8)).save(root / folder / name)
         Image.fromarray(np.full((HEIGHT, WIDTH), 1500, dtype=np.uint16)).save(root / "depth" / name)
-        frames.append(
-            {
-                "file_path": f"images/{name}",
-                "transform_matrix": c2w.tolist(),
-                "depth_file_path": f"depth/{name}",
-                "semantics_file_path": f"semantics/{name}",
-                "normals_file_path": f"normals/{name}",
-                "shading_file_path": f"shading/{name}",
-                "keypoints_file_path": f"keypoints/{name}",
-                "edges_file_path": f"edges/{name}",
-            }
-        )
+        frame = {"file_path": f"images/{name}", "transform_matrix": c2w.tolist(), "depth_file_path": f"depth/{name}"}
+        for spec in labelled:
+            Image.fromarray(random_label(spec, rng, len(CLASSES))).save(root / spec.name / name)
+            frame[spec.file_key] = f"{spec.name}/{name}"
+        frames.append(frame)
     transforms = {
         "camera_model": "OPENCV",
         "fl_x": 14.0, "fl_y": 14.0, "cx": WIDTH / 2, "cy": HEIGHT / 2, "w": WIDTH, "h": HEIGHT,

@@ -17,8 +17,9 @@ from ssnerf_method.evaluation.hybrid import HybridBaseline
 from ssnerf_method.experiments import benchmark
 from ssnerf_method.experiments.benchmark import BenchmarkConfig, run
 from ssnerf_method.experiments.report import beats, table1, table2
+from ssnerf_method.properties import OPTIONAL_PROPERTIES
 
-PROPERTIES = ("semantics", "normals", "shading", "keypoints", "edges")
+PROPERTIES = OPTIONAL_PROPERTIES
 
 
 def test_tables_average_scenes_and_judge_each_metric_the_right_way() -> None:

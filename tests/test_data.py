@@ -19,9 +19,6 @@ from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, SEMANTIC_IGN
 
 from conftest import CLASSES, HEIGHT, WIDTH
 
-LABEL_DIRS = {"semantics": "semantics", "normals": "normals", "shading": "shading", "keypoints": "keypoints",
-              "edges": "edges"}
-
 
 def parse(root: Path, split: str = "train"):
     return SSNeRFDataParserConfig(data=root).setup().get_dataparser_outputs(split)
@@ -37,8 +34,8 @@ def index_of(dataset: SSNeRFDataset, frame_name: str) -> int:
 
 
 def expected_label(root: Path, name: str, frame_name: str) -> torch.Tensor:
-    array = np.asarray(Image.open(root / LABEL_DIRS[name] / frame_name))
-    if name == "semantics":
+    array = np.asarray(Image.open(root / name / frame_name))
+    if REGISTRY[name].kind.categorical:  # class ids as stored
         return torch.from_numpy(array.astype(np.float32))[..., None]
     tensor = torch.from_numpy(array.astype(np.float32) / 255.0)
     return tensor if tensor.ndim == 3 else tensor[..., None]
@@ -57,7 +54,7 @@ def test_parser_outputs_and_split(tiny_dataset: Path) -> None:
         assert len(files) == len(train.image_filenames)
         # each label file belongs to its image
         for image, label in zip(train.image_filenames, files):
-            assert Path(label).name == Path(image).name and Path(label).parent.name == LABEL_DIRS[name]
+            assert Path(label).name == Path(image).name and Path(label).parent.name == name
     assert [Path(p).name for p in test.metadata["property_files"]["normals"]] == ["frame_000.png"]
 
 
@@ -181,7 +178,7 @@ def test_truncated_png(tiny_dataset: Path) -> None:
 
 @pytest.mark.parametrize("name", ["shading", "semantics", "normals"])
 def test_label_size_differs_from_camera(tiny_dataset: Path, name: str) -> None:
-    path = tiny_dataset / LABEL_DIRS[name] / "frame_004.png"
+    path = tiny_dataset / name / "frame_004.png"
     shape = (HEIGHT - 4, WIDTH + 2, 3) if name == "normals" else (HEIGHT - 4, WIDTH + 2)
     Image.fromarray(np.zeros(shape, dtype=np.uint8)).save(path)
     with pytest.raises(LabelFileError, match=re.escape(str(path))) as info:

@@ -18,6 +18,7 @@ from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.export.dataset import ExportDatasetConfig, export_dataset
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 
 
 def test_interpolated_poses_are_proper_rotations_between_the_ends() -> None:
@@ -51,13 +52,13 @@ def test_export_reads_back_as_the_renders_at_the_training_poses(trained_scene, t
     # poses are written in the source dataset's frame: frame 0 sits where the first training frame does
     original = next(frame for frame in source["frames"] if Path(frame["file_path"]).name == train_names[0])
     assert np.allclose(first["transform_matrix"], original["transform_matrix"], atol=1e-5)
-    for key in ("semantics", "normals", "shading", "keypoints", "edges", "depth"):
-        assert (output / first[f"{key}_file_path"]).is_file(), key
+    for key in [*(REGISTRY[name].file_key for name in OPTIONAL_PROPERTIES), "depth_file_path"]:
+        assert (output / first[key]).is_file(), key
 
     # it is a dataset of this plugin's format: it loads, and its labels are the model's renders at those poses
     parser = SSNeRFDataParserConfig(data=output).setup()
     exported = SSNeRFDataset(parser.get_dataparser_outputs("train"))
-    assert set(exported.metadata["available_properties"]) == {"semantics", "normals", "shading", "keypoints", "edges"}
+    assert set(exported.metadata["available_properties"]) == set(OPTIONAL_PROPERTIES)
     _, pipeline, _, _ = eval_setup(config, test_mode="test")
     model = pipeline.model
     outputs = model.render_camera(pipeline.datamanager.train_dataset.cameras[0:1])

@@ -30,6 +30,7 @@ from ssnerf_method.data.importers.paper_llff import convert_normals, normals_axe
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.labelling.label_dataset import LabelDatasetConfig, label_dataset
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, labelled_properties
 from ssnerf_method.scripts.import_data import main
 
 from source_layouts import (
@@ -368,8 +369,8 @@ def test_imported_datasets_train(which: str, request, tmp_path: Path) -> None:
     shutil.copytree(imported, dst)
     if which == "replica":
         report = label_dataset(LabelDatasetConfig(data=dst, workers=1), load_transforms(dst))
-        assert all(report.labelled(name) == 8 for name in ("normals", "shading", "keypoints", "edges"))
-    properties = {"semantics", "normals", "shading", "keypoints", "edges"}
+        assert all(report.labelled(spec.name) == 8 for spec in labelled_properties() if not spec.kind.categorical)
+    properties = set(OPTIONAL_PROPERTIES)
     config = lite_config(dst, tmp_path / "outputs", iterations=3)
     config.steps_per_save = 10**6
     _, totals, dicts = train(config)
