@@ -20,6 +20,7 @@ from jaxtyping import Bool, Float
 from torch import Tensor
 from torchmetrics.functional import structural_similarity_index_measure
 
+from ssnerf_method.labels.encoding import decode_normals
 from ssnerf_method.properties import PropertySpec
 
 Statistics = Dict[str, Tensor]
@@ -267,7 +268,7 @@ class NormalMetric(L1Metric):
         self, prediction: Float[Tensor, "h w 3"], label: Float[Tensor, "h w 3"], valid: Tensor, num_classes: int
     ) -> Statistics:
         statistics = super().statistics(prediction, label, valid, num_classes)
-        predicted, true = prediction[valid].double() * 2 - 1, label[valid].double() * 2 - 1
+        predicted, true = decode_normals(prediction[valid].double()), decode_normals(label[valid].double())
         norms = predicted.norm(dim=-1) * true.norm(dim=-1)
         directed = norms > 1e-6
         cosine = (predicted * true).sum(-1)[directed] / norms[directed]

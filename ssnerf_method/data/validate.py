@@ -142,12 +142,13 @@ def validate_transforms(
         for spec in REGISTRY.values():
             if spec.file_key is not None and spec.file_key in frame:
                 validation.labelled[spec.name] = validation.labelled.get(spec.name, 0) + 1
-    if validation.labelled.get("semantics") and "semantics" not in skip_labels:
-        if not (isinstance(classes, list) and classes and all(isinstance(name, str) for name in classes)):
-            faults.append(
-                f"{path}: frames list semantics files but there is no top-level \"semantic_classes\" list of names. "
-                "Add the class names (id = index), e.g. \"semantic_classes\": [\"void\", \"bed\", ...]."
-            )
+    class_labels = [spec.name for spec in REGISTRY.values()
+                    if spec.kind.categorical and validation.labelled.get(spec.name) and spec.name not in skip_labels]
+    if class_labels and not (isinstance(classes, list) and classes and all(isinstance(name, str) for name in classes)):
+        faults.append(
+            f"{path}: frames list {class_labels[0]} files but there is no top-level \"semantic_classes\" list of "
+            "names. Add the class names (id = index), e.g. \"semantic_classes\": [\"void\", \"bed\", ...]."
+        )
     with ThreadPoolExecutor(max_workers=max(workers, 1)) as pool:
         faults.extend(fault for fault in pool.map(lambda job: job(), jobs) if fault is not None)
     return validation

@@ -157,7 +157,7 @@ def _read_label(prop: str, path: Path, normals_map: tuple[list[int], list[bool]]
         if image.ndim != 3:
             raise DatasetInputError(f"{path}: normals must be an RGB image, got shape {image.shape}. Re-export it.")
         return convert_normals(as_rgb(image, path), *normals_map)
-    if prop != "semantics":
+    if not REGISTRY[prop].kind.categorical:
         return to_uint8(first_channel(image), path)
     ids = first_channel(image)
     bad = sorted(int(i) for i in np.unique(ids) if i >= num_classes and i != SEMANTIC_IGNORE)
