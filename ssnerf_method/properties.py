@@ -451,6 +451,9 @@ REGISTRY: Dict[str, PropertySpec] = {
 
 OPTIONAL_PROPERTIES: Tuple[str, ...] = tuple(name for name in REGISTRY if name != "rgb")
 
+PropertyName = Literal[OPTIONAL_PROPERTIES]  # type: ignore[valid-type]
+"""The name of an optional property, as a type: command-line options typed with it accept the registry's names only."""
+
 
 def labelled_properties() -> List[PropertySpec]:
     """The properties a label maker can make, in the order they run (registry order: a maker's sources first)."""

@@ -37,7 +37,7 @@ from ssnerf_method.experiments.launcher import launch
 from ssnerf_method.experiments.report import average, columns_of, property_columns, property_table
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.export.dataset import ExportDatasetConfig, export_dataset
-from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName
 from ssnerf_method.rendering.palette import semantic_palette
 
 SETTINGS: Dict[str, Tuple[str, ...]] = {
@@ -59,7 +59,7 @@ def load_split(root: Path, split: str) -> SSNeRFDataset:
 class AugmentationStudy(StudyConfig):
     """Table 6: a task network per property trained on ground truth, SS-NeRF renders, or both."""
 
-    properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties with a task network."""
     task_network: HybridBaselineConfig = field(default_factory=HybridBaselineConfig)
     """Size and schedule of every task network (the Hybrid baseline's defaults)."""

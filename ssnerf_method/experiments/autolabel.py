@@ -31,7 +31,7 @@ from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import Column, average, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
-from ssnerf_method.properties import REGISTRY, PropertySpec
+from ssnerf_method.properties import REGISTRY, PropertyName, PropertySpec
 from ssnerf_method.rendering.palette import semantic_palette
 
 
@@ -70,7 +70,7 @@ def make_weak_dataset(
 class AutoLabelStudy(StudyConfig):
     """Weak labels (clean ones corrupted per view) against SS-NeRF trained on them, both scored on clean labels."""
 
-    target: str = "semantics"
+    target: PropertyName = "semantics"
     """The property given weak labels."""
     rates: Tuple[float, ...] = ()
     """Corruption rates (default per corruption: semantics 0.1 0.3 0.5 of the pixels; normals and shading a mean

@@ -24,7 +24,6 @@ from typing import Any, Callable, Dict, List, Literal, Optional, Tuple
 
 import numpy as np
 import torch
-import tyro
 
 from nerfstudio.engine.schedulers import MultiStepSchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
@@ -34,14 +33,16 @@ from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.spacing import dataset_spacing, pose_spacing
+from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.evaluation.figures import property_grid, shown, shown_label
 from ssnerf_method.evaluation.heuristic import DepthSource, HeuristicBaseline, HeuristicBaselineConfig
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.experiments import presets
 from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch, write_atomically
 from ssnerf_method.experiments.report import write_report
 from ssnerf_method.method_configs import SHORT_RUN_STEPS, short_run
-from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertySpec, resolve_properties
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName, PropertySpec, resolve_properties
 from ssnerf_method.rendering.depth import rendered_z_depth
 from ssnerf_method.rendering.palette import semantic_palette
 from ssnerf_method.scene.make_scene import MakeSceneConfig, camera_path, make_scene
@@ -94,6 +95,8 @@ class ScenesRunsConfig(LauncherOptions):
     quick: bool = False
     """A few minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not
     meaningful; the whole pipeline runs."""
+    preset: Optional[Path] = None
+    """A YAML file of these options (the repository's `configs/`: the paper's tables); flags typed after it win."""
 
     def __post_init__(self) -> None:
         if self.lr_drop is not None and not 0.0 < self.lr_drop < 1.0:
@@ -104,7 +107,7 @@ class ScenesRunsConfig(LauncherOptions):
 class BenchmarkConfig(ScenesRunsConfig):
     """Train and score SS-NeRF and the paper's two baselines on scenes; write Table 1, Table 2-left and figures."""
 
-    properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties benchmarked (each needs labels in the scenes)."""
     all_properties_model: bool = True
     """Also train one model on all properties (an extra row)."""
@@ -439,8 +442,11 @@ def run(config: BenchmarkConfig) -> Dict[str, Dict[str, Dict[str, float]]]:
 
 
 def entrypoint() -> None:
-    """Console script `ssnerf-benchmark`."""
-    run(tyro.cli(BenchmarkConfig))
+    """Console script `ssnerf-benchmark` (`--preset configs/table1.yaml` reads its options from a file)."""
+    try:
+        run(presets.cli(BenchmarkConfig, "ssnerf-benchmark"))
+    except UserError as err:
+        exit_with(err, "ssnerf-benchmark")
 
 
 if __name__ == "__main__":

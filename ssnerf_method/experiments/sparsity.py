@@ -28,7 +28,7 @@ from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import average, cell, columns_of, headline, property_title
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.experiments.transfer import limited_scene
-from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
 METHODS = {"SS-NeRF": None, "Heuristic": "heuristic", "Hybrid": "hybrid"}
@@ -46,7 +46,7 @@ def jobs_of(benches: Dict[str, Tuple[Path, int, SceneBenchmark]]) -> List[Job]:
 class SparsityStudy(StudyConfig):
     """SS-NeRF, the Heuristic and the Hybrid per property on k training views of one sequence, for several k."""
 
-    properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties scored (one SS-NeRF each per k)."""
     views: Tuple[int, ...] = (48, 24, 12, 6)
     """Numbers of training views kept (evenly spaced along the sequence); the test views are always the same."""

@@ -50,7 +50,7 @@ from ssnerf_method.experiments.report import (
     property_title,
     training_words,
 )
-from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName
 
 Results = Dict[str, Dict[str, Dict[str, Any]]]
 """scene -> run name -> that run's test-split metrics."""
@@ -103,7 +103,7 @@ class StudyConfig(ScenesRunsConfig):
 class BranchStudy(StudyConfig):
     """Table 3: each property on the view-dependent decoder F_dec^v and on the view-independent F_dec^nv."""
 
-    properties: Tuple[str, ...] = ("semantics", "shading", "keypoints", "edges")
+    properties: Tuple[PropertyName, ...] = ("semantics", "shading", "keypoints", "edges")
     """Properties moved between the branches."""
     normals: bool = True
     """Also compare normals in this plugin's world-frame mode with the paper's pose-conditioned mode."""
@@ -151,7 +151,7 @@ class BranchStudy(StudyConfig):
 class RGBStudy(StudyConfig):
     """Table 2: RGB PSNR with and without each property (left); each property with and without RGB (right)."""
 
-    properties: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
 
     name = "rgb"
 
@@ -185,9 +185,9 @@ class RGBStudy(StudyConfig):
 class MultiTaskStudy(StudyConfig):
     """Table 4: a target property alone, with each other property, and with all of them."""
 
-    target: str = "shading"
+    target: PropertyName = "shading"
     """The property scored (the paper's Table 4 uses SH)."""
-    others: Tuple[str, ...] = OPTIONAL_PROPERTIES
+    others: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties paired with the target (the target itself is skipped)."""
 
     name = "multitask"

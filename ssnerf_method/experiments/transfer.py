@@ -30,7 +30,7 @@ from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, Scene
 from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import average, headline, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
-from ssnerf_method.properties import REGISTRY
+from ssnerf_method.properties import REGISTRY, PropertyName
 from ssnerf_method.rendering.palette import semantic_palette
 
 LIMITED = "Limited Views"
@@ -79,9 +79,9 @@ def limited_scene(output: Path, scene: Path, k: int) -> Path:
 class TransferStudy(StudyConfig):
     """Table 5: the target property on k views, from scratch and with F_enc transferred from each source."""
 
-    target: str = "shading"
+    target: PropertyName = "shading"
     """The property learnt from limited views (the paper's is SH)."""
-    sources: Tuple[str, ...] = ("semantics", "normals", "keypoints", "edges")
+    sources: Tuple[PropertyName, ...] = ("semantics", "normals", "keypoints", "edges")
     """Properties whose all-view SS-NeRF gives F_enc."""
     views: int = 6
     """Training views of the target (evenly spaced along the training trajectory)."""

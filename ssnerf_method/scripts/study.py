@@ -3,31 +3,44 @@
 
 from __future__ import annotations
 
-from typing import Union
+from typing import Dict, Optional, Sequence, Type, Union
 
 import tyro
 from typing_extensions import Annotated
 
+from ssnerf_method.errors import UserError, exit_with
+from ssnerf_method.experiments import presets
 from ssnerf_method.experiments.augmentation import AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
 from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy
 from ssnerf_method.experiments.transfer import TransferStudy
 
-Study = Union[
-    Annotated[BranchStudy, tyro.conf.subcommand("branches")],
-    Annotated[RGBStudy, tyro.conf.subcommand("rgb")],
-    Annotated[MultiTaskStudy, tyro.conf.subcommand("multitask")],
-    Annotated[TransferStudy, tyro.conf.subcommand("transfer")],
-    Annotated[AugmentationStudy, tyro.conf.subcommand("augmentation")],
-    Annotated[AutoLabelStudy, tyro.conf.subcommand("autolabel")],
-    Annotated[SparsityStudy, tyro.conf.subcommand("sparsity")],
-]
+STUDIES: Dict[str, Type] = {
+    "branches": BranchStudy,
+    "rgb": RGBStudy,
+    "multitask": MultiTaskStudy,
+    "transfer": TransferStudy,
+    "augmentation": AugmentationStudy,
+    "autolabel": AutoLabelStudy,
+    "sparsity": SparsityStudy,
+}
+"""Each subcommand's study."""
+
+Study = Union[tuple(Annotated[study, tyro.conf.subcommand(name)] for name, study in STUDIES.items())]  # type: ignore
+
+
+def parse(args: Optional[Sequence[str]] = None):
+    """The study the command line (or `args`) asks for; `--preset configs/<study>.yaml` names it and its options."""
+    return presets.study_cli(STUDIES, Study, "ssnerf-study", args)
 
 
 def entrypoint() -> None:
     """Console script `ssnerf-study`."""
-    tyro.cli(Study).run()  # type: ignore[union-attr]
+    try:
+        parse().run()
+    except UserError as err:
+        exit_with(err, "ssnerf-study")
 
 
 if __name__ == "__main__":
