@@ -19,9 +19,10 @@ from nerfstudio.cameras.camera_paths import get_path_from_json
 from nerfstudio.utils.eval_utils import eval_setup
 
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
+from ssnerf_method.properties import REGISTRY
 from ssnerf_method.scene.make_scene import FLY_THROUGH
 
-NAMES = ("rgb", "semantics", "normals", "shading", "keypoints", "edges")
+NAMES = tuple(REGISTRY)
 
 
 def test_fly_through_starts_at_the_first_camera(trained_scene) -> None:

@@ -17,16 +17,18 @@ from nerfstudio.utils.eval_utils import eval_setup
 
 from ssnerf_method.experiments.benchmark import shrink_for_quick
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
-from ssnerf_method.properties import OPTIONAL_PROPERTIES
+from ssnerf_method.metrics import METRICS
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 
 from conftest import CLASSES, HEIGHT, WIDTH, write_tiny_dataset
 
 EXPECTED_OUTPUTS = {
-    "rgb": 3, "semantics": 3, "semantics_logits": len(CLASSES), "normals": 3, "shading": 3, "shading_value": 1,
-    "keypoints": 3, "keypoints_value": 1, "edges": 3, "edges_value": 1,
+    **{spec.name: 3 for spec in REGISTRY.values()},
+    **{spec.prediction_key: spec.kind.head_channels(len(CLASSES)) for spec in REGISTRY.values()
+       if spec.kind.prediction_suffix},
 }
-"""`render_camera`'s outputs (predictions and display images) and their channels."""
-DISPLAY_OUTPUTS = {"rgb", "semantics", "normals", "shading", "keypoints", "edges", "depth", "accumulation"}
+"""`render_camera`'s outputs (display images, and the predictions stored apart from them) and their channels."""
+DISPLAY_OUTPUTS = {*REGISTRY, "depth", "accumulation"}
 """What the viewer lists and `ns-render` can write: nothing internal."""
 
 
@@ -164,7 +166,8 @@ def test_lite_checkpoint_round_trip(lite_run) -> None:
     assert torch.mean((outputs["rgb"] - image) ** 2) < 0.03
 
     metrics = pipeline.get_average_eval_image_metrics()
-    for key in ("psnr", "semantics_miou", "normals_l1", "shading_l1", "keypoints_l1", "edges_l1"):
+    for spec in REGISTRY.values():  # every property's headline number
+        key = spec.metric_prefix + METRICS[spec.metric].reported[0][0]
         assert key in metrics and np.isfinite(metrics[key]), key
     assert metrics["psnr"] > 12
     assert 0.0 <= metrics["semantics_miou"] <= 1.0
