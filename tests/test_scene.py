@@ -16,11 +16,12 @@ from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_response_m
 from ssnerf_method.labels.normals import normals_from_depth
 from ssnerf_method.labels.shading import lambertian_shading
 from ssnerf_method.metrics import local_maxima
+from ssnerf_method.properties import labelled_properties
 from ssnerf_method.scene.make_scene import LABEL_DIRS, MakeSceneConfig, make_scene
 from ssnerf_method.scene.room import build_room
 
 WIDTH, HEIGHT, FRAMES = 48, 36, 6
-LABEL_KEYS = ("depth", "semantics", "normals", "shading", "keypoints", "edges")
+LABEL_KEYS = ("depth", *(spec.name for spec in labelled_properties()))
 
 
 def _generate(directory: Path, seed: int = 0, **overrides) -> Path:
