@@ -118,8 +118,9 @@ def cli(cls: Type[Config], prog: str, args: Optional[Sequence[str]] = None) -> C
     if STUDY_KEY in data:
         raise PresetError(f"{path}: a study preset (it names `study: {data[STUDY_KEY]}`). Run it with ssnerf-study.")
     _check_keys(path, cls, data)
-    _check_values(path, cls, to_flags(data), prog)
-    return tyro.cli(cls, args=[*to_flags(data), *args], prog=prog)
+    flags = to_flags(data)
+    _check_values(path, cls, flags, prog)
+    return tyro.cli(cls, args=[*flags, *args], prog=prog)
 
 
 def study_cli(studies: Dict[str, Type], union: Any, prog: str, args: Optional[Sequence[str]] = None) -> Any:
@@ -138,5 +139,6 @@ def study_cli(studies: Dict[str, Type], union: Any, prog: str, args: Optional[Se
     if typed and typed[0] != study:
         raise PresetError(f"{path}: is a preset of `ssnerf-study {study}`, but `{typed[0]}` was typed. Drop one.")
     _check_keys(path, studies[study], data)
-    _check_values(path, union, [study, *to_flags(data)], prog)
-    return tyro.cli(union, args=[study, *to_flags(data), *args[len(typed):]], prog=prog)
+    flags = [study, *to_flags(data)]
+    _check_values(path, union, flags, prog)
+    return tyro.cli(union, args=[*flags, *args[len(typed):]], prog=prog)

@@ -41,11 +41,6 @@ HFOV_DEG = 75.0
 SUPERSAMPLE = 2
 """RGB is averaged over SUPERSAMPLE x SUPERSAMPLE rays per pixel."""
 
-EDGE_THRESHOLDS = (100.0, 200.0)
-"""Canny hysteresis thresholds (low, high) on the 8-bit grey RGB image."""
-
-KEYPOINT_SIGMA = 1.5
-"""With `--keypoint-label blobs`: standard deviation in pixels of each keypoint's Gaussian blob."""
 KEYPOINT_DETECTOR: Detector = "sift"
 """With `--keypoint-label blobs`: OpenCV's SIFT (the scenes' detector before the response map became the default)."""
 
@@ -88,7 +83,7 @@ class MakeSceneConfig:
     """Duration of the fly-through video."""
     keypoint_label: KeypointLabel = "response"
     """Keypoint label: SURF's dense blob-response map (default; a field learns it) or `blobs`, SIFT keypoints splatted
-    as Gaussians of `KEYPOINT_SIGMA` px (the scenes' label before 2026-12; fields render it empty)."""
+    as Gaussians (`LabelOptions.keypoint_sigma`; the scenes' label before 2026-12; fields render it empty)."""
     overwrite: bool = False
     """Replace the scene files (transforms.json and the label folders) of a non-empty output_dir."""
     trajectory: Trajectory = "loop"
@@ -240,20 +235,17 @@ def render_view(room: Room, camera: PinholeCamera) -> RenderedView:
 
 
 def label_options(config: MakeSceneConfig) -> LabelOptions:
-    """The label makers' settings for the generated scene: the default thresholds, the keypoint label chosen, and the
-    normal label from the ray caster's exact normals or from the written depth map."""
+    """The label makers' settings for the generated scene: their defaults (`ssnerf-label`'s), the keypoint label
+    chosen (blobs from SIFT), and the normal label from the ray caster's exact normals or from the written depth."""
     return LabelOptions(
-        canny_low=EDGE_THRESHOLDS[0], canny_high=EDGE_THRESHOLDS[1], keypoint_label=config.keypoint_label,
-        keypoint_detector=KEYPOINT_DETECTOR, keypoint_sigma=KEYPOINT_SIGMA,
+        keypoint_label=config.keypoint_label, keypoint_detector=KEYPOINT_DETECTOR,
         normals_source="exact" if config.normals == "exact" else "depth", semantics_from="the ray caster's class ids",
     )
 
 
-def view_sources(view: RenderedView, rgb: np.ndarray, depth: np.ndarray, k: Dict[str, float]) -> FrameSources:
-    """What the label makers read of a rendered frame: the written RGB and millimetre depth, the true normals (the
-    shading label's, and the normal label's when exact) and the ray caster's class ids."""
-    height, width = rgb.shape[:2]
-    rays = camera_ray_directions(height, width, k["fl_x"], k["fl_y"], k["cx"], k["cy"])
+def view_sources(view: RenderedView, rgb: np.ndarray, depth: np.ndarray, rays: np.ndarray) -> FrameSources:
+    """What the label makers read of a rendered frame: the written RGB and millimetre depth, the camera's unit rays,
+    the true normals (the shading label's, and the normal label's when exact) and the ray caster's class ids."""
     return FrameSources(rgb=rgb, rays=lambda scale: rays, depth=lambda: depth.astype(np.float64),
                         normals=view.normals, semantics=lambda: view.semantics)
 
@@ -278,6 +270,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
     room = build_room(config.seed)
     k = intrinsics(config.width, config.height)
     options = label_options(config)
+    rays = camera_ray_directions(config.height, config.width, k["fl_x"], k["fl_y"], k["cx"], k["cy"])  # one camera
     writer = DatasetWriter(config.output_dir)
     train, test = [], []
     for i, pose in enumerate(camera_path(config.trajectory, config.num_frames, config.seed)):
@@ -285,7 +278,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
         view = render_view(room, camera)
         rgb = to_uint8(view.rgb)
         depth = np.round(np.clip(view.depth * 1000.0, 0, 65535)).astype(np.uint16)
-        sources = view_sources(view, rgb, depth, k)
+        sources = view_sources(view, rgb, depth, rays)
         labels = {"depth": depth, **{spec.name: spec.label_maker.make(sources, options)
                                      for spec in labelled_properties()}}
         file_path = writer.add_frame(i, rgb, pose, labels)
