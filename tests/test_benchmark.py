@@ -47,20 +47,26 @@ def test_quick_benchmark_end_to_end_then_resumes(tmp_path: Path, monkeypatch) ->
     output = tmp_path / "report"
     results = run(BenchmarkConfig(quick=True, output=output))
     assert set(results) == {"walkthrough_seed_0", "walkthrough_seed_1"}
-    expected_rows = {"nerf", *(f"ssnerf-{name}" for name in PROPERTIES), "ssnerf-all", "heuristic", "hybrid"}
+    expected_rows = {"nerf", *(f"ssnerf-{name}" for name in PROPERTIES), "ssnerf-all", "heuristic", "hybrid",
+                     "nearest"}
     for rows in results.values():
         assert set(rows) == expected_rows
         assert set(rows["nerf"]) >= {"psnr", "ssim"} and "semantics_miou" not in rows["nerf"]
         assert {"psnr", "semantics_miou", "semantics_acc"} <= set(rows["ssnerf-semantics"])
         assert "normals_l1" not in rows["ssnerf-semantics"]  # one property per model
         assert {"semantics_miou", "normals_l1", "edges_l1"} <= set(rows["heuristic"]) and "psnr" not in rows["hybrid"]
+        # the copied nearest view is a floor, not the warp: it scores every property and differs from the Heuristic
+        assert {"semantics_miou", "keypoints_f1", "edges_f1"} <= set(rows["nearest"])
+        assert rows["nearest"]["normals_l1"] != rows["heuristic"]["normals_l1"]
 
     report = (output / "report.md").read_text()
     assert "## Table 1" in report and "| Heuristic, average |" in report and "| Hybrid, average |" in report
+    assert "| Nearest training view copied, average |" in report
     assert "SS-NeRF-SL" in report
     tables = json.loads((output / "tables.json").read_text())
-    assert [row["row"] for row in tables["table1"]][-4:] == [
-        "SS-NeRF, average", "SS-NeRF, one model for all properties, average", "Heuristic, average", "Hybrid, average"]
+    assert [row["row"] for row in tables["table1"]][-5:] == [
+        "SS-NeRF, average", "SS-NeRF, one model for all properties, average", "Heuristic, average", "Hybrid, average",
+        "Nearest training view copied, average"]
     assert all(np.isfinite(value) for row in tables["table1"] for key, value in row.items() if key != "row")
     for scene in results:
         figure = np.asarray(Image.open(output / f"figure_{scene}.png"))

@@ -120,7 +120,7 @@ def test_a_property_added_by_one_registry_row_runs_end_to_end(tmp_path: Path) ->
 
     assert facts["scene_key"] == "curvature/frame_00000.png" and facts["scene_file"]  # the generator made it
     assert facts["label_outcomes"] == {"labelled": 10}  # ssnerf-label made it
-    assert set(facts["rows"]) == {"nerf", "ssnerf-curvature", "heuristic", "hybrid"}
+    assert set(facts["rows"]) == {"nerf", "ssnerf-curvature", "heuristic", "hybrid", "nearest"}
     assert "curvature_l1" in facts["rows"]["heuristic"] and "curvature_l1" in facts["rows"]["hybrid"]
     assert facts["checkpoints"] == ["step-000000029.ckpt"]  # trained the quick benchmark's 30 steps
     assert 0.0 < facts["curvature_l1"] < 1.0  # and evaluated

@@ -194,7 +194,7 @@ def test_quick_sparsity_scores_each_method_against_the_number_of_views(tmp_path:
     results = study.run()
     assert set(results) == {"walkthrough_dense_seed_0-6views", "walkthrough_dense_seed_0-3views"}
     assert set(results["walkthrough_dense_seed_0-3views"]) == {
-        "nerf", "ssnerf-semantics", "ssnerf-normals", "heuristic", "hybrid"}
+        "nerf", "ssnerf-semantics", "ssnerf-normals", "heuristic", "hybrid", "nearest"}
     assert_planned(study, output, 0.0)
     tables = json.loads((output / "study_sparsity.json").read_text())["tables"]["sparsity"]
     rows = tables["normals"]
@@ -210,3 +210,15 @@ def test_quick_sparsity_scores_each_method_against_the_number_of_views(tmp_path:
     assert "| 3 views |" in text and "SN l1" in text
     figure = np.asarray(Image.open(output / "figure_sparsity.png"))
     assert figure.std() > 10
+
+
+@pytest.mark.parametrize("study", [BranchStudy, RGBStudy, MultiTaskStudy, TransferStudy, AugmentationStudy,
+                                   AutoLabelStudy, SparsityStudy])
+def test_a_study_hands_its_launcher_flags_to_the_runs(study, tmp_path: Path) -> None:
+    # `ssnerf-study ... --launcher ray` once trained everything locally, one run after another: the flags were dropped
+    options = study(output=tmp_path, steps=7, launcher="ray", ray_address="ray://head:10001", cpus_per_run=2.0,
+                    gpus_per_run=1.0, retries=5)
+    config = options.benchmark_config()
+    assert (config.launcher, config.ray_address, config.cpus_per_run, config.gpus_per_run, config.retries) == (
+        "ray", "ray://head:10001", 2.0, 1.0, 5)
+    assert (config.output, config.steps) == (tmp_path, 7)

@@ -35,12 +35,17 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.spacing import dataset_spacing, pose_spacing
 from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.evaluation.figures import property_grid, shown, shown_label
-from ssnerf_method.evaluation.heuristic import DepthSource, HeuristicBaseline, HeuristicBaselineConfig
+from ssnerf_method.evaluation.heuristic import (
+    DepthSource,
+    HeuristicBaseline,
+    HeuristicBaselineConfig,
+    nearest_view_copy,
+)
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments import presets
 from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch, write_atomically
-from ssnerf_method.experiments.report import write_report
+from ssnerf_method.experiments.report import BASELINE_ROWS, write_report
 from ssnerf_method.method_configs import SHORT_RUN_STEPS, short_run
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName, PropertySpec, resolve_properties
 from ssnerf_method.rendering.depth import rendered_z_depth
@@ -54,8 +59,9 @@ NERF = "nerf"
 """Run name of the RGB-only model (the Hybrid baseline's renderer and Table 2's NeRF row)."""
 ALL = "ssnerf-all"
 """Run name of the all-properties model."""
-BASELINES = ("heuristic", "hybrid")
-"""The paper's two baselines, rows of Table 1."""
+BASELINES = tuple(BASELINE_ROWS)
+"""Rows of Table 1 that train no field: the paper's two baselines, and the floor every method should beat (the
+nearest training view's labels, copied without a warp)."""
 
 
 @dataclass
@@ -290,7 +296,7 @@ class SceneBenchmark:
         return self.folder / f"{name}-{self.config.method}-{self.tag}.json"
 
     def baseline(self, name: str) -> Dict[str, Any]:
-        """A baseline's test-split scores (`heuristic` or `hybrid`), computed once."""
+        """A baseline's test-split scores (`heuristic`, `hybrid` or `nearest`), computed once."""
         result = self.baseline_path(name)
         failed = self.failed(result.with_suffix(".log"))
         if failed is not None and not result.is_file():
@@ -304,6 +310,9 @@ class SceneBenchmark:
             num_classes = len(nerf.datamanager.train_dataset.metadata.get("semantic_classes", []))  # type: ignore
             if name == "heuristic":
                 predict = self.heuristic(nerf, specs, num_classes).predict_view
+            elif name == "nearest":
+                predict = nearest_view_copy(nerf.datamanager.train_dataset, specs, num_classes,  # type: ignore
+                                            self.config.heuristic.angle_weight)
             else:
                 predict = self.hybrid(nerf, specs, num_classes).predictor(rgb_renderer(nerf))
             metrics = score_predictor(predict, self.test_dataset(nerf), specs, num_classes)

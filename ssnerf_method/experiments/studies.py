@@ -19,7 +19,7 @@ import json
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
@@ -94,8 +94,8 @@ class StudyConfig(ScenesRunsConfig):
         raise NotImplementedError
 
     def benchmark_config(self) -> BenchmarkConfig:
-        config = BenchmarkConfig(scenes=self.scenes, method=self.method, output=self.output, steps=self.steps,
-                                 lr_drop=self.lr_drop, quick=self.quick)
+        """The benchmark's settings for this study's runs: every shared option, --launcher and its Ray flags too."""
+        config = BenchmarkConfig(**{option.name: getattr(self, option.name) for option in fields(ScenesRunsConfig)})
         return quick_config(config) if self.quick else config
 
 
