@@ -82,7 +82,7 @@ def test_ray_quick_benchmark_matches_the_local_one_and_a_rerun_trains_nothing(tm
     process = driver(distributed)
     local_results = run(BenchmarkConfig(quick=True, output=local))
     text = finished(process)
-    assert "launcher ray: 18 of 18 runs to do" in text and "18 done, 0 running, 0 failed" in text
+    assert "launcher ray: 20 of 20 runs to do" in text and "20 done, 0 running, 0 failed" in text
 
     assert results_layout(distributed) == results_layout(local)
     assert len(checkpoints(results_layout(local))) == 14  # 7 models on each of 2 scenes
@@ -146,10 +146,10 @@ def test_a_killed_task_is_retried_then_reported_failed_and_the_rerun_trains_only
     assert len(others) == 3 and not (victim / "metrics.json").exists()  # the other three models are kept
     kept = {path: path.stat().st_mtime_ns for path in others}
     baselines = sorted((output / "runs").glob("walkthrough_seed_*/*-30-steps.json"))
-    assert len(baselines) == 4  # both baselines of both scenes (they need only the NeRF)
+    assert len(baselines) == 6  # the three baselines of both scenes (they need only the NeRF)
 
     text = finished(driver(output, *arguments))
-    assert "1 of 8 runs to do" in text
+    assert "1 of 10 runs to do" in text
     assert (victim / "metrics.json").is_file() and not (victim / "launcher.log.failed.json").exists()
     assert {path: path.stat().st_mtime_ns for path in others} == kept  # finished runs were not retrained
     assert "Failed runs" not in (output / "report.md").read_text()
