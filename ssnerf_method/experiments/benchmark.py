@@ -111,7 +111,8 @@ class ScenesRunsConfig(LauncherOptions):
 
 @dataclass
 class BenchmarkConfig(ScenesRunsConfig):
-    """Train and score SS-NeRF and the paper's two baselines on scenes; write Table 1, Table 2-left and figures."""
+    """Train and score SS-NeRF, the paper's two baselines and the copied nearest view on scenes; write Table 1,
+    Table 2-left and figures."""
 
     properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties benchmarked (each needs labels in the scenes)."""
@@ -278,7 +279,7 @@ class SceneBenchmark:
                    result=self.run_dir(run.name) / "metrics.json", log=self.log(run.name), after=after)
 
     def jobs(self) -> List[Job]:
-        """Every model and both baselines (which read the RGB-only model) as launcher jobs."""
+        """Every model and every baseline (they read the RGB-only model) as launcher jobs."""
         models = [self.job(run) for run in self.models()]
         nerf = next(job.key for job, run in zip(models, self.models()) if run.name == NERF)
         baselines = [Job(key=f"{self.name}/{name}-{self.config.method}-{self.tag}",
@@ -320,7 +321,7 @@ class SceneBenchmark:
         return metrics
 
     def run(self) -> Dict[str, Dict[str, Any]]:
-        """Every model and both baselines on this scene: name -> test-split metrics (or {"failed": ...} for a run
+        """Every model and every baseline on this scene: name -> test-split metrics (or {"failed": ...} for a run
         a Ray launch could not finish)."""
         models = self.models()
         results = {}
