@@ -13,7 +13,7 @@ import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
-from nerfstudio.field_components.encodings import NeRFEncoding
+from nerfstudio.field_components.encodings import HashEncoding, NeRFEncoding
 from nerfstudio.field_components.mlp import MLP, MLPWithHashEncoding
 
 
@@ -74,3 +74,51 @@ class HashGridEncoder(PositionEncoder):
         unit = (positions + 2.0) / 4.0  # the grid expects [0, 1]
         out = self.mlp(unit.reshape(-1, 3)).view(*positions.shape[:-1], -1)
         return torch.split(out, [1, self.feature_dim], dim=-1)  # type: ignore[return-value]
+
+
+_HASH_PRIMES = (1, 2654435761, 805459861)
+"""Instant-NGP's spatial hash primes, as `HashEncoding.hash_fn` multiplies the three axes by them."""
+
+
+class GatheredHashEncoding(HashEncoding):
+    """nerfstudio's `HashEncoding` whose torch path hashes and reads the eight cell corners in one batch.
+
+    The features are the same numbers as nerfstudio's (same hash, same interpolation, same order of operations: a
+    test compares them bit for bit). nerfstudio indexes the table eight times with `table[indices]`, whose backward on
+    a CPU is a serial `index_put_(accumulate=True)` into eight zero-filled table-sized gradients, and hashes each
+    corner from scratch; here one `index_select` (one `index_add_` backward) reads all corners, and the per-axis
+    products of the hash are computed once and combined by XOR. The tcnn path is untouched."""
+
+    def pytorch_fwd(self, in_tensor: Float[Tensor, "*bs input_dim"]) -> Float[Tensor, "*bs output_dim"]:
+        assert in_tensor.shape[-1] == 3
+        scaled = in_tensor[..., None, :] * self.scalings.view(-1, 1).to(in_tensor.device)  # [..., L, 3]
+        floor = torch.floor(scaled)
+        offset = scaled - floor
+        primes = torch.tensor(_HASH_PRIMES, device=in_tensor.device)
+        # per axis, [ceiling, floor] times its prime: [2, ..., L] each
+        x, y, z = (torch.stack([torch.ceil(scaled[..., axis]), floor[..., axis]]).long() * primes[axis]
+                   for axis in range(3))
+        hashed = (x[:, None, None] ^ y[None, :, None]) ^ z[None, None, :]  # [2 (x), 2 (y), 2 (z), ..., L]
+        hashed = hashed % self.hash_table_size + self.hash_offset.to(hashed.device)
+        corners = torch.index_select(self.hash_table, 0, hashed.reshape(-1)).view(*hashed.shape, -1)
+        # nerfstudio's interpolation, x first, then y, then z; index 0 is the ceiling corner, weighted by the offset
+        # (unbind, not indexing: its backward stacks the halves' gradients instead of zero-filling one per half)
+        ceiling, below = corners.unbind(0)
+        along_x = ceiling * offset[..., 0:1] + below * (1 - offset[..., 0:1])  # [2 (y), 2 (z), ..., L, F]
+        ceiling, below = along_x.unbind(0)
+        along_y = ceiling * offset[..., 1:2] + below * (1 - offset[..., 1:2])  # [2 (z), ..., L, F]
+        ceiling, below = along_y.unbind(0)
+        encoded = ceiling * offset[..., 2:3] + below * (1 - offset[..., 2:3])  # [..., L, F]
+        return torch.flatten(encoded, start_dim=-2, end_dim=-1)
+
+
+def gather_hash_lookups(module: nn.Module) -> int:
+    """Switch every torch-path `HashEncoding` inside `module` (the field's F_enc, the proposal networks) to
+    `GatheredHashEncoding` in place: same parameters and state-dict keys, so checkpoints load either way. Returns how
+    many were switched."""
+    switched = 0
+    for child in module.modules():
+        if type(child) is HashEncoding and child.tcnn_encoding is None:
+            child.__class__ = GatheredHashEncoding
+            switched += 1
+    return switched

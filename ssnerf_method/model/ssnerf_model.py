@@ -27,7 +27,12 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataset import DEPTH_KEY
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY, add_pose_metadata
-from ssnerf_method.fields.encoders import HashGridEncoder, PositionalMLPEncoder, PositionEncoder
+from ssnerf_method.fields.encoders import (
+    HashGridEncoder,
+    PositionalMLPEncoder,
+    PositionEncoder,
+    gather_hash_lookups,
+)
 from ssnerf_method.fields.ssnerf_field import DecoderSharing, SSNeRFField
 from ssnerf_method.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.model.encoder_transfer import encoder_modules, load_encoders
@@ -123,6 +128,9 @@ class SSNeRFModelConfig(ModelConfig):
     """Far plane, in the dataparser's scaled units (cameras lie within [-1, 1] after scaling)."""
     implementation: Literal["tcnn", "torch"] = "torch"
     """Hash grid implementation (tcnn needs tiny-cuda-nn on CUDA)."""
+    hash_lookup: Literal["gathered", "nerfstudio"] = "gathered"
+    """Torch-path hash grids (the field's and the proposal networks'): "gathered" reads the eight cell corners in one
+    batch (`fields/encoders.py`, the same features, a faster CPU step), "nerfstudio" keeps `HashEncoding`'s lookup."""
     balance_ratio: Optional[float] = None
     """Gradient-norm balancing (`model/loss_balancing.py`): if set, every `balance_every` steps each property's loss is
     scaled (by at most 1) so that its gradient into F_enc is at most this multiple of RGB's. None trains the paper's
@@ -168,6 +176,8 @@ class SSNeRFModel(Model):
             self.balancer = LossBalancer(balanced, self.config.balance_ratio)
         self.balance_now = False
         self.sampling: RaySampling = self._build_sampling()
+        if self.config.hash_lookup == "gathered":
+            gather_hash_lookups(self.sampling)
         self.collider = NearFarCollider(near_plane=self.config.near_plane, far_plane=self.config.far_plane)
         self.renderer_depth = DepthRenderer(method="median")
         self.renderer_accumulation = AccumulationRenderer()
