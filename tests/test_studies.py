@@ -15,9 +15,10 @@ from PIL import Image
 
 from nerfstudio.utils.eval_utils import eval_setup
 
-from ssnerf_method.experiments import benchmark
+from ssnerf_method.experiments import benchmark, sparsity
 from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
+from ssnerf_method.experiments.report import BASELINE_ROWS
 from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
 from ssnerf_method.experiments.transfer import TransferStudy
@@ -199,8 +200,11 @@ def test_quick_sparsity_scores_each_method_against_the_number_of_views(tmp_path:
     tables = json.loads((output / "study_sparsity.json").read_text())["tables"]["sparsity"]
     rows = tables["normals"]
     assert [row["row"] for row in rows] == ["6 views", "3 views"]
-    assert all(row[f"{method} normals"] is not None for row in rows for method in ("SS-NeRF", "Heuristic", "Hybrid"))
+    assert all(row[f"{method} normals"] is not None for row in rows for method in sparsity.METHODS)
+    assert list(sparsity.METHODS)[1:] == list(BASELINE_ROWS.values())  # every Table 1 row without a field
     assert rows[1]["Heuristic normals"] == results["walkthrough_dense_seed_0-3views"]["heuristic"]["normals_l1"]
+    copied = rows[1][f"{BASELINE_ROWS['nearest']} normals"]
+    assert copied == results["walkthrough_dense_seed_0-3views"]["nearest"]["normals_l1"] != rows[1]["Heuristic normals"]
     # fewer views sit further from the test views (the test views are the same)
     assert rows[1]["median distance (m)"] > rows[0]["median distance (m)"] > 0
     for k in (3, 6):

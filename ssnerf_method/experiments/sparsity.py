@@ -1,11 +1,11 @@
-"""`ssnerf-study sparsity`: SS-NeRF, the Heuristic and the Hybrid per property against the number of training views.
+"""`ssnerf-study sparsity`: SS-NeRF and Table 1's three baselines per property against the number of training views.
 
 From one dense sequence (default: the seed-0 walkthrough rendered with 56 frames, every 8th held out, so 49 training
 views), it keeps k evenly spaced training views for each k of `--views` (the test views never change; the k-view copy
 is the transfer study's, `make_limited_dataset`), and on each copy runs Table 1 without the all-properties model: an
-RGB-only NeRF, one SS-NeRF per property, the Heuristic (labels warped from the nearest of the k views) and the Hybrid
-(annotators trained on the k views, applied to the NeRF's renders). It tells a user how densely to capture, and shows
-where warping the nearest view stops being enough.
+RGB-only NeRF, one SS-NeRF per property, the Heuristic (labels warped from the nearest of the k views), the Hybrid
+(annotators trained on the k views, applied to the NeRF's renders) and the nearest of the k views' labels copied. It
+tells a user how densely to capture, and shows where warping the nearest view stops being enough.
 """
 
 from __future__ import annotations
@@ -25,14 +25,15 @@ from ssnerf_method.experiments.benchmark import (
     scene_spacing,
 )
 from ssnerf_method.experiments.launcher import Job, launch
-from ssnerf_method.experiments.report import average, cell, columns_of, headline, property_title
+from ssnerf_method.experiments.report import BASELINE_ROWS, average, cell, columns_of, headline, property_title
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
 from ssnerf_method.experiments.transfer import limited_scene
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
-METHODS = {"SS-NeRF": None, "Heuristic": "heuristic", "Hybrid": "hybrid"}
-"""Columns of the study: SS-NeRF (each property from its own model) and the two baselines (their rows' names)."""
+METHODS = {"SS-NeRF": None, **{title: key for key, title in BASELINE_ROWS.items()}}
+"""Columns of the study: SS-NeRF (each property from its own model), then Table 1's rows that train no field (the
+Heuristic, the Hybrid, the copied nearest view), by their result keys."""
 DENSE_FRAMES = 56
 """Frames of the default dense sequence: every 8th held out leaves 49 training views, enough for k = 48."""
 
@@ -44,7 +45,7 @@ def jobs_of(benches: Dict[str, Tuple[Path, int, SceneBenchmark]]) -> List[Job]:
 
 @dataclass
 class SparsityStudy(StudyConfig):
-    """SS-NeRF, the Heuristic and the Hybrid per property on k training views of one sequence, for several k."""
+    """SS-NeRF and Table 1's baselines per property on k training views of one sequence, for several k."""
 
     properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties scored (one SS-NeRF each per k)."""
@@ -109,7 +110,7 @@ class SparsityStudy(StudyConfig):
         return runs.get(single(prop) if row is None else row, {}).get(metric)
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
-        """Per property: rows k (views), columns SS-NeRF / Heuristic / Hybrid (every reported measure in the JSON)."""
+        """Per property: rows k (views), a column per `METHODS` entry (every reported measure in the JSON)."""
         texts, data = [], {}
         by_k = self.by_views(results)
         output = self.benchmark_config().output
@@ -157,7 +158,7 @@ class SparsityStudy(StudyConfig):
         figure, axes = plt.subplots(1, len(self.properties), figsize=(3.2 * len(self.properties), 3.0), squeeze=False)
         for axis, prop in zip(axes[0], self.properties):
             metric, higher = headline(prop)
-            for method, style in zip(METHODS, ("o-", "s--", "^:")):
+            for method, style in zip(METHODS, ("o-", "s--", "^:", "d-.")):
                 values = [average([self.value(results[name], method, prop, metric) for name in by_k[k]])
                           for k in views]
                 axis.plot(views, [float("nan") if value is None else value for value in values], style, label=method)

@@ -3,12 +3,14 @@
     python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 5] [--rays 1024] \
         [--time-budget 60]
 
-Four cases, all at the same rays per batch:
+Five cases, all at the same rays per batch:
 
   (a) `ssnerf-lite`, all five properties          (a)/(b): what the properties cost on the lite architecture
   (b) `ssnerf-lite`, RGB only (`properties=()`)
   (c) nerfstudio's `vanilla-nerf`                   (d)/(c): the paper's architecture with every property against
   (d) `ssnerf` (paper sizes), all properties              plain NeRF at equal rays and samples (coarse + fine)
+  (e) (a) with nerfstudio's hash-grid lookup        (a)/(e): what the gathered lookup (`fields/encoders.py`) buys
+      (`hash_lookup=nerfstudio`)
 
 Each case builds its pipeline and optimizers straight from the method config (no Trainer, no viewer, no logging),
 runs `--warmup` untimed training steps and then times `--steps` steps: loss dict, summed loss, backward, optimizer
@@ -67,7 +69,7 @@ class BenchmarkConfig:
     Warm-up stops early after a quarter of it (after at least 2 steps). 0 disables the budget."""
     min_steps: int = 3
     """Fewest timed steps per case when the time budget cuts timing short."""
-    cases: Tuple[Literal["a", "b", "c", "d"], ...] = ("a", "b", "c", "d")
+    cases: Tuple[Literal["a", "b", "c", "d", "e"], ...] = ("a", "b", "c", "d", "e")
     """Cases to run (a ratio is printed when both of its cases ran)."""
     output: Optional[Path] = None
     """Optional JSON file to save the numbers to."""
@@ -117,8 +119,10 @@ def _device_type() -> str:
     return "cuda" if torch.cuda.is_available() else "cpu"
 
 
-def _ssnerf_case(base: TrainerConfig, data: Path, rays: int, properties) -> TrainerConfig:
+def _ssnerf_case(base: TrainerConfig, data: Path, rays: int, properties, **model) -> TrainerConfig:
     config = copy.deepcopy(base)
+    for key, value in model.items():
+        setattr(config.pipeline.model, key, value)
     config.machine.device_type = _device_type()
     config.vis = "tensorboard"
     config.pipeline.datamanager.data = data
@@ -265,6 +269,9 @@ def run(config: BenchmarkConfig) -> Dict:
             ("d", f"ssnerf (paper), all properties, {paper.num_coarse_samples}+{paper.num_fine_samples} samples",
              "ssnerf", list(OPTIONAL_PROPERTIES),
              lambda: _ssnerf_case(ssnerf_config, data, config.rays, OPTIONAL_PROPERTIES), None),
+            ("e", "ssnerf-lite, all properties, nerfstudio's hash lookup", "ssnerf-lite", list(OPTIONAL_PROPERTIES),
+             lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
+                                  hash_lookup="nerfstudio"), None),
         ]
         load_before = _load_average()
         results: Dict[str, CaseResult] = {}
@@ -284,7 +291,7 @@ def run(config: BenchmarkConfig) -> Dict:
     load_after = _load_average()
     ratios = {
         f"{num}/{den}": results[num].rays_per_second / results[den].rays_per_second
-        for num, den in (("a", "b"), ("d", "c"))
+        for num, den in (("a", "b"), ("d", "c"), ("a", "e"))
         if num in results and den in results
     }
     print()
@@ -294,6 +301,8 @@ def run(config: BenchmarkConfig) -> Dict:
         print(f"(a)/(b) ssnerf-lite all properties / RGB only:              {ratios['a/b']:.3f}x throughput")
     if "d/c" in ratios:
         print(f"(d)/(c) ssnerf all properties / vanilla-nerf ({samples} samples/ray): {ratios['d/c']:.3f}x throughput")
+    if "a/e" in ratios:
+        print(f"(a)/(e) ssnerf-lite gathered / nerfstudio's hash lookup:    {ratios['a/e']:.3f}x throughput")
     busy = [load for load in (load_before, load_after) if load is not None and load > (os.cpu_count() or 1) + 0.5]
     if device == "cpu" and busy:
         print(f"Note: 1-min load average {load_before} before / {load_after} after on {os.cpu_count()} cores: other "
