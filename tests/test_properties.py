@@ -271,10 +271,10 @@ def test_loss_override_replaces_only_the_named_property() -> None:
     assert REGISTRY["edges"].loss == "l1"
 
 
-def test_lite_trains_edges_with_mse_and_the_paper_config_keeps_l1() -> None:
+def test_lite_trains_edges_and_keypoints_with_mse_and_the_paper_config_keeps_l1() -> None:
     from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 
-    assert ssnerf_lite_config.pipeline.model.losses == {"edges": "mse"}
+    assert ssnerf_lite_config.pipeline.model.losses == {"edges": "mse", "keypoints": "mse"}
     assert ssnerf_config.pipeline.model.losses == {}
 
 
