@@ -43,7 +43,8 @@ class DemoConfig:
     method: Literal["auto", "ssnerf", "ssnerf-lite"] = "auto"
     """Method to train; "auto" picks `ssnerf` on a CUDA GPU and `ssnerf-lite` on the CPU."""
     max_num_iterations: Optional[int] = None
-    """Training steps (default: 1000 for ssnerf-lite, 6-10 min on 2 CPU cores; 20000 for ssnerf on a GPU)."""
+    """Training steps (default: 1000 for ssnerf-lite, 6-17 min on the 2-core machines measured, README "What to
+    expect"; 20000 for ssnerf on a GPU)."""
     width: int = 128
     """Scene image width."""
     height: int = 96
