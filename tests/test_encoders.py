@@ -43,6 +43,8 @@ def test_gathered_lookup_gives_nerfstudio_features_and_gradients() -> None:
     assert reference.hash_table.grad is not None and gathered.hash_table.grad is not None
     assert reference.hash_table.grad.abs().max() > 0
     torch.testing.assert_close(gathered.hash_table.grad, reference.hash_table.grad, rtol=1e-5, atol=1e-5)
+    nothing = torch.zeros(0, 3)  # a batch without samples (e.g. every ray culled) keeps its shape
+    assert gathered(nothing).shape == reference(nothing).shape == (0, reference.get_out_dim())
 
 
 @pytest.mark.parametrize("lookup, expected", [("gathered", GatheredHashEncoding), ("nerfstudio", HashEncoding)])

@@ -100,7 +100,8 @@ class GatheredHashEncoding(HashEncoding):
                    for axis in range(3))
         hashed = (x[:, None, None] ^ y[None, :, None]) ^ z[None, None, :]  # [2 (x), 2 (y), 2 (z), ..., L]
         hashed = hashed % self.hash_table_size + self.hash_offset.to(hashed.device)
-        corners = torch.index_select(self.hash_table, 0, hashed.reshape(-1)).view(*hashed.shape, -1)
+        corners = torch.index_select(self.hash_table, 0, hashed.reshape(-1))
+        corners = corners.view(*hashed.shape, self.features_per_level)  # [2, 2, 2, ..., L, F]
         # nerfstudio's interpolation, x first, then y, then z; index 0 is the ceiling corner, weighted by the offset
         # (unbind, not indexing: its backward stacks the halves' gradients instead of zero-filling one per half)
         ceiling, below = corners.unbind(0)
