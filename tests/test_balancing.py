@@ -108,3 +108,68 @@ def test_property_decoders_share_nothing_between_properties() -> None:
         gradients = torch.autograd.grad(outputs["rgb"].sum(), edges_parameters, allow_unused=True)
         reached = any(g is not None and g.abs().sum() > 0 for g in gradients)
         assert reached == shared
+
+
+def test_rgb_apart_gives_rgb_its_own_mlp_and_one_per_branch_to_the_others() -> None:
+    """`decoder_sharing=rgb-apart`: on F_dec^v, RGB has an MLP of its own and the other view-dependent properties share
+    one (RGB's output reaches neither's weights in the other); F_dec^nv's properties share one MLP; a model with one
+    property has as many decoder parameters as with `property`, and `property` keeps its parameter names."""
+    from test_properties import NUM_CLASSES, make_samples
+
+    from ssnerf_method.fields.encoders import HashGridEncoder
+    from ssnerf_method.fields.ssnerf_field import GroupedDecoders, SSNeRFField
+    from ssnerf_method.properties import resolve_properties
+
+    def field(names, sharing):
+        torch.manual_seed(0)
+        encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16,
+                                  feature_dim=8)
+        return SSNeRFField(resolve_properties(names), NUM_CLASSES, encoder, decoder_width=16, decoder_sharing=sharing)
+
+    def decoder_parameters(module):
+        return {key: value.shape for key, value in module.state_dict().items() if key.startswith("decoders.")}
+
+    names = ["semantics", "normals", "shading", "keypoints", "edges"]
+    specs = {spec.name: spec for spec in resolve_properties(names)}
+    apart, per_property = field(names, "rgb-apart"), field(names, "property")
+    for branch, decoders in apart.decoders.items():
+        assert isinstance(decoders, GroupedDecoders)
+        groups = {key: set(decoder.names) for key, decoder in decoders.decoders.items()}
+        others = {name for name, spec in specs.items() if spec.branch == branch and name != "rgb"}
+        expected = {"properties": others, **({"rgb": {"rgb"}} if specs["rgb"].branch == branch else {})}
+        assert groups == expected
+    assert len(list(apart.parameters())) < len(list(per_property.parameters()))
+
+    outputs = apart(make_samples(make_bundle()))
+    assert set(outputs) >= set(names) and outputs["semantics"].shape[-1] == NUM_CLASSES
+    v = apart.decoders["v"].decoders
+    rgb_gradients = torch.autograd.grad(outputs["rgb"].sum(), list(v["properties"].parameters()), allow_unused=True)
+    assert all(g is None or g.abs().sum() == 0 for g in rgb_gradients)
+    view_dependent = next(name for name in v["properties"].names)
+    shared = torch.autograd.grad(outputs[view_dependent].sum(), list(v["properties"].parameters()), allow_unused=True)
+    assert any(g is not None and g.abs().sum() > 0 for g in shared)
+
+    single_apart, single_property = field(["edges"], "rgb-apart"), field(["edges"], "property")
+    assert sorted(decoder_parameters(single_apart).values()) == sorted(decoder_parameters(single_property).values())
+    prefixes = {".".join(key.split(".")[:4]) for key in decoder_parameters(single_property)}
+    assert prefixes == {"decoders.v.decoders.rgb", "decoders.v.decoders.edges"}  # the names checkpoints carry
+
+
+@pytest.mark.parametrize("sharing", ["property", "rgb-apart"])
+def test_property_decoder_width_narrows_the_property_mlps_and_keeps_rgbs(sharing: str) -> None:
+    """`property_decoder_width`: every MLP that decodes properties apart from RGB has that width; RGB's keeps
+    `decoder_width`, so an RGB-only model is unchanged by it."""
+    from test_properties import NUM_CLASSES
+
+    from ssnerf_method.fields.encoders import HashGridEncoder
+    from ssnerf_method.fields.ssnerf_field import SSNeRFField
+    from ssnerf_method.properties import resolve_properties
+
+    encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16, feature_dim=8)
+    field = SSNeRFField(resolve_properties(["semantics", "normals", "edges"]), NUM_CLASSES, encoder, decoder_width=24,
+                        decoder_sharing=sharing, property_decoder_width=8)
+    widths = {(branch, key): decoder.heads.in_features
+              for branch, grouped in field.decoders.items() for key, decoder in grouped.decoders.items()}
+    assert widths[("v", "rgb")] == 24
+    assert {width for where, width in widths.items() if where != ("v", "rgb")} == {8}
+    assert len(widths) == (4 if sharing == "property" else 3)

@@ -42,25 +42,40 @@ class BranchDecoder(nn.Module):
         return dict(zip(self.names, torch.split(raw, self.channels, dim=-1)))
 
 
-class PropertyDecoders(nn.Module):
-    """A decoder branch with one MLP per property instead of one shared by all: the same inputs and outputs as
-    `BranchDecoder`, but no property competes with another (RGB included) for the hidden units."""
+class GroupedDecoders(nn.Module):
+    """A decoder branch split into several MLPs on the same inputs, each giving a group of the branch's properties:
+    properties in different groups (RGB included) never compete for hidden units."""
 
-    def __init__(self, in_dim: int, width: int, num_layers: int, head_channels: Dict[str, int]) -> None:
+    def __init__(
+        self, in_dim: int, widths: Dict[str, int], num_layers: int, groups: Dict[str, Dict[str, int]]
+    ) -> None:
         super().__init__()
-        self.names = list(head_channels)
         self.decoders = nn.ModuleDict(
-            {name: BranchDecoder(in_dim, width, num_layers, {name: channels})
-             for name, channels in head_channels.items()}
+            {key: BranchDecoder(in_dim, widths[key], num_layers, heads) for key, heads in groups.items() if heads}
         )
 
     def forward(self, inputs: Float[Tensor, "*bs in_dim"]) -> Dict[str, Tensor]:
-        return {name: decoder(inputs)[name] for name, decoder in self.decoders.items()}
+        return {name: values for decoder in self.decoders.values() for name, values in decoder(inputs).items()}
 
 
-DecoderSharing = Literal["branch", "property"]
-"""`branch`: one MLP per decoder branch, shared by its properties (the paper's F_dec^v and F_dec^nv); `property`: one
-MLP per property on its branch's inputs."""
+DecoderSharing = Literal["branch", "property", "rgb-apart"]
+"""How a decoder branch's properties share MLPs. `branch`: one MLP per branch, shared by its properties (the paper's
+F_dec^v and F_dec^nv); `property`: one MLP per property; `rgb-apart`: RGB has its own MLP and each branch's other
+properties share one (a single-property model is the same as with `property`; more properties cost less)."""
+
+
+def decoder_groups(
+    sharing: DecoderSharing, heads: Dict[str, int], rgb_name: str
+) -> Optional[Dict[str, Dict[str, int]]]:
+    """The MLP groups of one branch's heads (by group key), or None for one shared MLP (`branch`).
+    `property` keys each MLP by its property, so checkpoints keep their parameter names."""
+    if sharing == "branch":
+        return None
+    if sharing == "property":
+        return {name: {name: channels} for name, channels in heads.items()}
+    others = {name: channels for name, channels in heads.items() if name != rgb_name}
+    return {rgb_name: {name: channels for name, channels in heads.items() if name == rgb_name},
+            "properties": others}
 
 
 class SSNeRFField(Field):
@@ -72,7 +87,10 @@ class SSNeRFField(Field):
         encoder: the shared position encoder F_enc.
         direction_encoding: "nerf" (4-frequency sinusoids, the paper's) or "sh" (spherical harmonics, degree 4).
         decoder_width, decoder_layers: size of each decoder MLP.
-        decoder_sharing: one decoder MLP per branch (the paper's) or one per property.
+        property_decoder_width: width of the MLPs that decode properties apart from RGB (not with `branch`
+            sharing, where they share RGB's); None: `decoder_width`.
+        decoder_sharing: one decoder MLP per branch (the paper's), one per property, or RGB's own and one per
+            branch for the other properties (`DecoderSharing`).
         density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
         implementation: "tcnn" or "torch" for the spherical-harmonics encoding.
@@ -87,6 +105,7 @@ class SSNeRFField(Field):
         decoder_width: int = 128,
         decoder_layers: int = 1,
         decoder_sharing: DecoderSharing = "branch",
+        property_decoder_width: Optional[int] = None,
         density_activation: Literal["relu", "trunc_exp"] = "relu",
         density_noise: float = 0.0,
         implementation: Literal["tcnn", "torch"] = "torch",
@@ -111,12 +130,19 @@ class SSNeRFField(Field):
             "v": encoder.feature_dim + self.direction_encoding.get_out_dim(),
             "nv": encoder.feature_dim + (self.pose_encoding.get_out_dim() if self.pose_encoding is not None else 0),
         }
+        rgb_name = next((spec.name for spec in specs if spec.label_key == "image"), "")
         self.decoders = nn.ModuleDict()
-        decoder_type = BranchDecoder if decoder_sharing == "branch" else PropertyDecoders
         for branch, in_dim in branch_inputs.items():
             heads = {spec.name: spec.kind.head_channels(num_classes) for spec in specs if spec.branch == branch}
-            if heads:
-                self.decoders[branch] = decoder_type(in_dim, decoder_width, decoder_layers, heads)
+            if not heads:
+                continue
+            groups = decoder_groups(decoder_sharing, heads, rgb_name)
+            if groups is None:
+                self.decoders[branch] = BranchDecoder(in_dim, decoder_width, decoder_layers, heads)
+                continue
+            widths = {key: decoder_width if rgb_name in group else property_decoder_width or decoder_width
+                      for key, group in groups.items()}
+            self.decoders[branch] = GroupedDecoders(in_dim, widths, decoder_layers, groups)
 
     def get_density(self, ray_samples: RaySamples) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
         positions = self.spatial_distortion(ray_samples.frustums.get_positions())

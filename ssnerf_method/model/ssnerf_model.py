@@ -99,7 +99,11 @@ class SSNeRFModelConfig(ModelConfig):
     """Hidden layers of each decoder branch."""
     decoder_sharing: DecoderSharing = "branch"
     """"branch": one decoder MLP per branch shared by its properties (the paper's F_dec^v, F_dec^nv); "property": one
-    MLP per property on its branch's inputs, so RGB and the properties never share hidden units."""
+    MLP per property on its branch's inputs, so RGB and the properties never share hidden units; "rgb-apart": RGB's own
+    MLP and one per branch shared by the other properties (fewer MLPs than "property" when several are trained)."""
+    property_decoder_width: Optional[int] = None
+    """Width of the decoder MLPs of the properties when they have their own ("property", "rgb-apart"); None:
+    `decoder_width`. The per-property MLPs are most of what the properties add to a step's cost."""
     density_noise: float = 1.0
     """Std of noise added to raw density while training (NeRF); 0 disables."""
     density_activation: Literal["relu", "trunc_exp"] = "relu"
@@ -198,6 +202,7 @@ class SSNeRFModel(Model):
             decoder_width=self.config.decoder_width,
             decoder_layers=self.config.decoder_layers,
             decoder_sharing=self.config.decoder_sharing,
+            property_decoder_width=self.config.property_decoder_width,
             density_activation=self.config.density_activation,
             density_noise=self.config.density_noise,
             implementation=self.config.implementation,

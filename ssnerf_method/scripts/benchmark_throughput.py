@@ -1,7 +1,7 @@
 """Training throughput (rays/s) of SS-NeRF against RGB-only SS-NeRF and nerfstudio's vanilla NeRF, in one run.
 
     python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 5] [--rays 1024] \
-        [--time-budget 60]
+        [--time-budget 60] [--cases a b] [--rounds 3]
 
 Five cases, all at the same rays per batch:
 
@@ -15,7 +15,8 @@ Five cases, all at the same rays per batch:
 Each case builds its pipeline and optimizers straight from the method config (no Trainer, no viewer, no logging),
 runs `--warmup` untimed training steps and then times `--steps` steps: loss dict, summed loss, backward, optimizer
 and scheduler step, zero_grad, plus the model's before/after-iteration training callbacks, as the Trainer does.
-Rays/s = rays per batch x timed steps / seconds. Torch's thread count is left as it is.
+Rays/s = rays per batch x timed steps / seconds. Torch's thread count is left as it is. With `--rounds N` the cases
+take turns N times and each reports its median round, so a ratio compares cases timed in the same minutes.
 
 (c) and (d) (8x256 MLPs, 64 + 64 samples per ray) take ~10 s per step on 2 CPU cores, so each case's timing stops
 once `--time-budget` seconds are spent (after at least `--min-steps` steps); the table shows the steps timed.
@@ -71,8 +72,16 @@ class BenchmarkConfig:
     """Fewest timed steps per case when the time budget cuts timing short."""
     cases: Tuple[Literal["a", "b", "c", "d", "e"], ...] = ("a", "b", "c", "d", "e")
     """Cases to run (a ratio is printed when both of its cases ran)."""
+    rounds: int = 1
+    """Times every case is timed, the cases taking turns (a b a b ...), so that a drift in the machine's speed (which
+    on a shared 2-core machine can reach a fifth within minutes) falls on every case alike; each case reports its
+    median round."""
     output: Optional[Path] = None
     """Optional JSON file to save the numbers to."""
+
+    def __post_init__(self) -> None:
+        if self.rounds < 1:
+            raise ValueError(f"--rounds is how often each case is timed, at least 1; got {self.rounds}")
 
 
 @dataclass
@@ -274,19 +283,23 @@ def run(config: BenchmarkConfig) -> Dict:
                                   hash_lookup="nerfstudio"), None),
         ]
         load_before = _load_average()
-        results: Dict[str, CaseResult] = {}
-        for key, label, method, properties, build, context in cases:
-            if key not in config.cases:
-                continue
-            CONSOLE.print(f"({key}) {label} ...")
-            steps, seconds = time_training(
-                build(), config.steps, config.warmup, config.time_budget, config.min_steps, context
-            )
-            results[key] = CaseResult(key, label, method, properties, config.rays, steps, seconds)
-            gc.collect()  # the case's pipeline went with time_training's frame; free its memory before the next
-            if torch.cuda.is_available():
-                torch.cuda.empty_cache()
-            CONSOLE.print(f"    {results[key].ms_per_step:.1f} ms/step, {results[key].rays_per_second:.0f} rays/s")
+        rounds: Dict[str, List[CaseResult]] = {}
+        for round_index in range(config.rounds):
+            for key, label, method, properties, build, context in cases:
+                if key not in config.cases:
+                    continue
+                CONSOLE.print(f"({key}) {label}" + (f", round {round_index + 1}" if config.rounds > 1 else "") + " ...")
+                steps, seconds = time_training(
+                    build(), config.steps, config.warmup, config.time_budget, config.min_steps, context
+                )
+                result = CaseResult(key, label, method, properties, config.rays, steps, seconds)
+                rounds.setdefault(key, []).append(result)
+                gc.collect()  # the case's pipeline went with time_training's frame; free its memory before the next
+                if torch.cuda.is_available():
+                    torch.cuda.empty_cache()
+                CONSOLE.print(f"    {result.ms_per_step:.1f} ms/step, {result.rays_per_second:.0f} rays/s")
+        results = {key: sorted(timed, key=lambda result: result.ms_per_step)[(len(timed) - 1) // 2]
+                   for key, timed in rounds.items()}
 
     load_after = _load_average()
     ratios = {
@@ -318,7 +331,9 @@ def run(config: BenchmarkConfig) -> Dict:
         "rays_per_batch": config.rays,
         "load_average_1min": {"before": load_before, "after": load_after},
         "samples_per_ray_c_d": samples,
+        "rounds": config.rounds,
         "cases": {key: result.to_dict() for key, result in results.items()},
+        "ms_per_step_by_round": {key: [result.ms_per_step for result in timed] for key, timed in rounds.items()},
         "ratios": ratios,
     }
     if config.output is not None:
