@@ -138,6 +138,7 @@ def test_rgb_apart_gives_rgb_its_own_mlp_and_one_per_branch_to_the_others() -> N
         others = {name for name, spec in specs.items() if spec.branch == branch and name != "rgb"}
         expected = {"properties": others, **({"rgb": {"rgb"}} if specs["rgb"].branch == branch else {})}
         assert groups == expected
+        assert sorted(decoders.names) == sorted(set().union(*groups.values()))  # as BranchDecoder.names
     assert len(list(apart.parameters())) < len(list(per_property.parameters()))
 
     outputs = apart(make_samples(make_bundle()))

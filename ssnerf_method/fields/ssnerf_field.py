@@ -50,6 +50,8 @@ class GroupedDecoders(nn.Module):
         self, in_dim: int, widths: Dict[str, int], num_layers: int, groups: Dict[str, Dict[str, int]]
     ) -> None:
         super().__init__()
+        self.names = [name for heads in groups.values() for name in heads]
+        """The branch's properties, as `BranchDecoder.names`."""
         self.decoders = nn.ModuleDict(
             {key: BranchDecoder(in_dim, widths[key], num_layers, heads) for key, heads in groups.items() if heads}
         )
