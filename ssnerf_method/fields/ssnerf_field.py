@@ -89,10 +89,10 @@ class SSNeRFField(Field):
         encoder: the shared position encoder F_enc.
         direction_encoding: "nerf" (4-frequency sinusoids, the paper's) or "sh" (spherical harmonics, degree 4).
         decoder_width, decoder_layers: size of each decoder MLP.
-        property_decoder_width: width of the MLPs that decode properties apart from RGB (not with `branch`
-            sharing, where they share RGB's); None: `decoder_width`.
         decoder_sharing: one decoder MLP per branch (the paper's), one per property, or RGB's own and one per
             branch for the other properties (`DecoderSharing`).
+        property_decoder_width: width of the MLPs that decode properties apart from RGB (not with `branch`
+            sharing, where they share RGB's); None: `decoder_width`.
         density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
         implementation: "tcnn" or "torch" for the spherical-harmonics encoding.
