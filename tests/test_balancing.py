@@ -83,22 +83,28 @@ def test_model_scales_every_level_of_a_property_loss_by_its_multiplier() -> None
     assert not balanced.balance_now  # step 1 is not a multiple of balance_every = 3
 
 
-def test_property_decoders_share_nothing_between_properties() -> None:
-    """`decoder_sharing=property`: each property has its own MLP on its branch's inputs, so RGB's output has no
-    gradient in edges' decoder; with the paper's branch sharing the two share the F_dec^v MLP."""
-    from test_properties import NUM_CLASSES, make_samples
+def small_field(names, sharing: str, **options):
+    """A field with a tiny hash grid and 16-wide decoders (unless `options` says otherwise) for the decoder tests."""
+    from test_properties import NUM_CLASSES
 
     from ssnerf_method.fields.encoders import HashGridEncoder
     from ssnerf_method.fields.ssnerf_field import SSNeRFField
     from ssnerf_method.properties import resolve_properties
 
-    specs = resolve_properties(["semantics", "edges"])
+    torch.manual_seed(0)
+    encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16, feature_dim=8)
+    return SSNeRFField(resolve_properties(names), NUM_CLASSES, encoder, **{"decoder_width": 16, **options},
+                       decoder_sharing=sharing)
+
+
+def test_property_decoders_share_nothing_between_properties() -> None:
+    """`decoder_sharing=property`: each property has its own MLP on its branch's inputs, so RGB's output has no
+    gradient in edges' decoder; with the paper's branch sharing the two share the F_dec^v MLP."""
+    from test_properties import NUM_CLASSES, make_samples
+
     samples = make_samples(make_bundle())
     for sharing, shared in (("property", False), ("branch", True)):
-        torch.manual_seed(0)
-        encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16,
-                                  feature_dim=8)
-        field = SSNeRFField(specs, NUM_CLASSES, encoder, decoder_width=16, decoder_sharing=sharing)
+        field = small_field(["semantics", "edges"], sharing)
         outputs = field(samples)
         assert outputs["rgb"].shape[-1] == 3 and outputs["edges"].shape[-1] == 1
         assert outputs["semantics"].shape[-1] == NUM_CLASSES
@@ -116,22 +122,15 @@ def test_rgb_apart_gives_rgb_its_own_mlp_and_one_per_branch_to_the_others() -> N
     property has as many decoder parameters as with `property`, and `property` keeps its parameter names."""
     from test_properties import NUM_CLASSES, make_samples
 
-    from ssnerf_method.fields.encoders import HashGridEncoder
-    from ssnerf_method.fields.ssnerf_field import GroupedDecoders, SSNeRFField
+    from ssnerf_method.fields.ssnerf_field import GroupedDecoders
     from ssnerf_method.properties import resolve_properties
-
-    def field(names, sharing):
-        torch.manual_seed(0)
-        encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16,
-                                  feature_dim=8)
-        return SSNeRFField(resolve_properties(names), NUM_CLASSES, encoder, decoder_width=16, decoder_sharing=sharing)
 
     def decoder_parameters(module):
         return {key: value.shape for key, value in module.state_dict().items() if key.startswith("decoders.")}
 
     names = ["semantics", "normals", "shading", "keypoints", "edges"]
     specs = {spec.name: spec for spec in resolve_properties(names)}
-    apart, per_property = field(names, "rgb-apart"), field(names, "property")
+    apart, per_property = small_field(names, "rgb-apart"), small_field(names, "property")
     for branch, decoders in apart.decoders.items():
         assert isinstance(decoders, GroupedDecoders)
         groups = {key: set(decoder.names) for key, decoder in decoders.decoders.items()}
@@ -146,11 +145,11 @@ def test_rgb_apart_gives_rgb_its_own_mlp_and_one_per_branch_to_the_others() -> N
     v = apart.decoders["v"].decoders
     rgb_gradients = torch.autograd.grad(outputs["rgb"].sum(), list(v["properties"].parameters()), allow_unused=True)
     assert all(g is None or g.abs().sum() == 0 for g in rgb_gradients)
-    view_dependent = next(name for name in v["properties"].names)
+    view_dependent = v["properties"].names[0]
     shared = torch.autograd.grad(outputs[view_dependent].sum(), list(v["properties"].parameters()), allow_unused=True)
     assert any(g is not None and g.abs().sum() > 0 for g in shared)
 
-    single_apart, single_property = field(["edges"], "rgb-apart"), field(["edges"], "property")
+    single_apart, single_property = small_field(["edges"], "rgb-apart"), small_field(["edges"], "property")
     assert sorted(decoder_parameters(single_apart).values()) == sorted(decoder_parameters(single_property).values())
     prefixes = {".".join(key.split(".")[:4]) for key in decoder_parameters(single_property)}
     assert prefixes == {"decoders.v.decoders.rgb", "decoders.v.decoders.edges"}  # the names checkpoints carry
@@ -160,15 +159,7 @@ def test_rgb_apart_gives_rgb_its_own_mlp_and_one_per_branch_to_the_others() -> N
 def test_property_decoder_width_narrows_the_property_mlps_and_keeps_rgbs(sharing: str) -> None:
     """`property_decoder_width`: every MLP that decodes properties apart from RGB has that width; RGB's keeps
     `decoder_width`, so an RGB-only model is unchanged by it."""
-    from test_properties import NUM_CLASSES
-
-    from ssnerf_method.fields.encoders import HashGridEncoder
-    from ssnerf_method.fields.ssnerf_field import SSNeRFField
-    from ssnerf_method.properties import resolve_properties
-
-    encoder = HashGridEncoder(num_levels=2, base_res=4, max_res=16, log2_hashmap_size=8, hidden_dim=16, feature_dim=8)
-    field = SSNeRFField(resolve_properties(["semantics", "normals", "edges"]), NUM_CLASSES, encoder, decoder_width=24,
-                        decoder_sharing=sharing, property_decoder_width=8)
+    field = small_field(["semantics", "normals", "edges"], sharing, decoder_width=24, property_decoder_width=8)
     widths = {(branch, key): decoder.heads.in_features
               for branch, grouped in field.decoders.items() for key, decoder in grouped.decoders.items()}
     assert widths[("v", "rgb")] == 24
