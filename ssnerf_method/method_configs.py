@@ -26,8 +26,8 @@ from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 from ssnerf_method.pipelines.ssnerf_pipeline import SSNeRFPipelineConfig
 
 SHORT_RUN_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
-"""Training steps of a short run per method, the demo's and the benchmark's default (the methods' own
-`max_num_iterations` are for full-quality runs)."""
+"""Training steps of a short run per method, the benchmark's and the studies' default (the methods' own
+`max_num_iterations` are for full-quality runs; the demo has its own, `scripts.demo.DEMO_STEPS`)."""
 
 @dataclass
 class SSNeRFTrainerConfig(TrainerConfig):

@@ -171,6 +171,16 @@ def test_lite_checkpoint_round_trip(lite_run) -> None:
         assert key in metrics and np.isfinite(metrics[key]), key
     assert metrics["psnr"] > 12
     assert 0.0 <= metrics["semantics_miou"] <= 1.0
+    # the demo's hook gets each scored view's own render, so its PNGs need no second pass
+    seen = []
+    hooked = pipeline.get_average_image_metrics(
+        pipeline.datamanager.fixed_indices_eval_dataloader, "eval",
+        on_view=lambda index, camera, batch, out: seen.append((index, batch["image"], out)),
+    )
+    assert [index for index, _, _ in seen] == [0]
+    assert torch.equal(seen[0][1], image)
+    assert torch.allclose(seen[0][2]["rgb"], outputs["rgb"], atol=1e-6)
+    assert hooked["psnr"] == pytest.approx(metrics["psnr"], abs=1e-6)
 
 
 def test_hierarchical_pose_normals_runs_on_cpu(tmp_path: Path) -> None:

@@ -53,7 +53,7 @@ from ssnerf_method.rendering.palette import semantic_palette
 from ssnerf_method.scene.make_scene import MakeSceneConfig, camera_path, make_scene
 
 DEFAULT_STEPS = SHORT_RUN_STEPS
-"""Training steps per model unless --steps is given (the demo's)."""
+"""Training steps per model unless --steps is given."""
 
 NERF = "nerf"
 """Run name of the RGB-only model (the Hybrid baseline's renderer and Table 2's NeRF row)."""

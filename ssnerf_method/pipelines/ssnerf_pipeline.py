@@ -15,13 +15,15 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 from time import time
-from typing import Dict, List, Optional, Type
+from typing import Callable, Dict, List, Optional, Type
 
 import numpy as np
 import torch
 import torchvision.utils as vutils
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
+from torch import Tensor
 
+from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineConfig
 
 from ssnerf_method.errors import UserError
@@ -33,6 +35,11 @@ class SSNeRFPipelineConfig(VanillaPipelineConfig):
     """nerfstudio's vanilla pipeline with split-level property metrics."""
 
     _target: Type = field(default_factory=lambda: SSNeRFPipeline)
+
+
+ViewHook = Callable[[int, Cameras, Dict[str, Tensor], Dict[str, Tensor]], None]
+"""Called with (view index, camera, batch, outputs) for each evaluated view, e.g. to save its renders without
+rendering the view a second time."""
 
 
 class TrainingDiverged(UserError):
@@ -75,8 +82,10 @@ class SSNeRFPipeline(VanillaPipeline):
         step: Optional[int] = None,
         output_path: Optional[Path] = None,
         get_std: bool = False,
+        on_view: Optional[ViewHook] = None,
     ) -> Dict[str, float]:
-        """Split-level metrics of every view in `data_loader` (nerfstudio's signature; `ns-eval` calls this)."""
+        """Split-level metrics of every view in `data_loader` (nerfstudio's signature; `ns-eval` calls this), and
+        `on_view` on each view's outputs (the demo writes its PNGs so, from the one render the metrics use)."""
         self.eval()
         model = self.model
         totals: Dict[str, Statistics] = {}
@@ -104,6 +113,8 @@ class SSNeRFPipeline(VanillaPipeline):
                     for key, image in images.items():
                         path = output_path / f"{image_prefix}_{key}_{index:04d}.png"
                         vutils.save_image(image.permute(2, 0, 1).cpu(), path)
+                if on_view is not None:
+                    on_view(index, camera, batch, outputs)
                 progress.advance(task)
         self.train()
 

@@ -29,9 +29,13 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.evaluation.figures import display_image, property_grid
 from ssnerf_method.evaluation.heuristic import nearest_view_copy
 from ssnerf_method.evaluation.scoring import score_predictor
-from ssnerf_method.method_configs import short_run
+from ssnerf_method.method_configs import SHORT_RUN_STEPS, short_run
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_scene
+
+DEMO_STEPS = {"ssnerf-lite": 600, "ssnerf": SHORT_RUN_STEPS["ssnerf"]}
+"""The demo's training steps per method. On the CPU fewer than the benchmark's 1000, so that `make demo` stays within
+10 minutes end to end on 2 cores (README "What to expect" gives the time and what the 400 steps more would add)."""
 
 
 @dataclass
@@ -43,8 +47,7 @@ class DemoConfig:
     method: Literal["auto", "ssnerf", "ssnerf-lite"] = "auto"
     """Method to train; "auto" picks `ssnerf` on a CUDA GPU and `ssnerf-lite` on the CPU."""
     max_num_iterations: Optional[int] = None
-    """Training steps (default: 1000 for ssnerf-lite, 6-17 min on the 2-core machines measured, README "What to
-    expect"; 20000 for ssnerf on a GPU)."""
+    """Training steps (default: `DEMO_STEPS`, 600 for ssnerf-lite on the CPU, 20000 for ssnerf on a GPU)."""
     width: int = 128
     """Scene image width."""
     height: int = 96
@@ -74,17 +77,13 @@ def evaluate(
     pipeline: Pipeline, renders_dir: Optional[Path], summary: Optional[Path] = None, summary_view: int = 0
 ) -> Dict[str, float]:
     """The test split's metrics as `ns-eval` computes them; optionally ground truth | rendering PNGs per view, and
-    `summary`: one grid of every property (ground truth above SS-NeRF) on test view `summary_view`."""
+    `summary`: one grid of every property (ground truth above SS-NeRF) on test view `summary_view`. Each view is
+    rendered once, for its metrics and its PNGs."""
     model: SSNeRFModel = pipeline.model  # type: ignore[assignment]
-    scores = pipeline.get_average_eval_image_metrics()
-    scores = {name: value for name, value in scores.items() if name not in ("num_rays_per_sec", "fps")}
-    if renders_dir is None:
-        return scores
-    model.eval()
-    dataloader = pipeline.datamanager.fixed_indices_eval_dataloader  # type: ignore[attr-defined]
     grid: Dict[str, Dict[str, Optional[np.ndarray]]] = {"ground truth": {}, "SS-NeRF": {}}
-    for view, (camera, batch) in enumerate(dataloader):
-        outputs = model.render_camera(camera)
+
+    def save_renders(view: int, camera, batch: Dict[str, torch.Tensor], outputs: Dict[str, torch.Tensor]) -> None:
+        assert renders_dir is not None
         view_dir = renders_dir / f"test_view_{view:02d}"
         view_dir.mkdir(parents=True, exist_ok=True)
         for spec in model.specs:
@@ -94,7 +93,13 @@ def evaluate(
             Image.fromarray(np.concatenate([truth, shown], axis=1)).save(view_dir / f"{spec.name}.png")
             if view == summary_view:
                 grid["ground truth"][spec.name], grid["SS-NeRF"][spec.name] = truth, shown
-    if summary is not None:
+
+    scores = pipeline.get_average_image_metrics(  # type: ignore[call-arg]
+        pipeline.datamanager.fixed_indices_eval_dataloader, "eval",  # type: ignore[attr-defined]
+        on_view=save_renders if renders_dir is not None else None,
+    )
+    scores = {name: value for name, value in scores.items() if name not in ("num_rays_per_sec", "fps")}
+    if renders_dir is not None and summary is not None:
         property_grid(summary, model.specs, grid, f"Test view {summary_view} of the default scene: ground truth "
                       "(top) and SS-NeRF's renders (bottom), every property from one field")
     return scores
@@ -123,7 +128,8 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
     method = config.method
     if method == "auto":
         method = "ssnerf" if torch.cuda.is_available() else "ssnerf-lite"
-    trainer_config = short_run(method, scene_dir, config.output_dir / "runs", config.max_num_iterations)
+    trainer_config = short_run(method, scene_dir, config.output_dir / "runs",
+                               config.max_num_iterations or DEMO_STEPS[method])
     trainer_config.timestamp = "demo"
     CONSOLE.rule(f"Training {method} for {trainer_config.max_num_iterations} steps on {scene_dir}")
     CONSOLE.print(
