@@ -9,10 +9,12 @@ APT_PACKAGES := ffmpeg chromium
 env: $(VENV)/.installed
 
 # nerfstudio pulls opencv-python-headless; the contrib build (same version) is reinstalled last so that `cv2` is it.
+# --no-compile: no .pyc for the ~5 GB of torch and CUDA wheels up front (about a minute of `make demo` on 2 cores);
+# Python writes them for the modules it imports.
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
-	$(BIN)/pip install -e .
-	$(BIN)/pip install --force-reinstall --no-deps opencv-contrib-python-headless==4.10.0.84
+	$(BIN)/pip install --no-compile -e .
+	$(BIN)/pip install --no-compile --force-reinstall --no-deps opencv-contrib-python-headless==4.10.0.84
 	touch $@
 
 # Debian packages the tests use: ffmpeg (ns-render's videos) and chromium (the viewer checked in a browser).

@@ -33,9 +33,9 @@ from ssnerf_method.method_configs import SHORT_RUN_STEPS, short_run
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_scene
 
-DEMO_STEPS = {"ssnerf-lite": 600, "ssnerf": SHORT_RUN_STEPS["ssnerf"]}
+DEMO_STEPS = {"ssnerf-lite": 700, "ssnerf": SHORT_RUN_STEPS["ssnerf"]}
 """The demo's training steps per method. On the CPU fewer than the benchmark's 1000, so that `make demo` stays within
-10 minutes end to end on 2 cores (README "What to expect" gives the time and what the 400 steps more would add)."""
+10 minutes end to end on 2 cores (README "What to expect" gives the time and what the 300 steps more would add)."""
 
 
 @dataclass
@@ -47,7 +47,7 @@ class DemoConfig:
     method: Literal["auto", "ssnerf", "ssnerf-lite"] = "auto"
     """Method to train; "auto" picks `ssnerf` on a CUDA GPU and `ssnerf-lite` on the CPU."""
     max_num_iterations: Optional[int] = None
-    """Training steps (default: `DEMO_STEPS`, 600 for ssnerf-lite on the CPU, 20000 for ssnerf on a GPU)."""
+    """Training steps (default: `DEMO_STEPS`, 700 for ssnerf-lite on the CPU, 20000 for ssnerf on a GPU)."""
     width: int = 128
     """Scene image width."""
     height: int = 96
