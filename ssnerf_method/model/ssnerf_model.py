@@ -18,7 +18,7 @@ from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.field_components.spatial_distortions import SceneContraction
 from nerfstudio.fields.density_fields import HashMLPDensityField
-from nerfstudio.model_components.losses import distortion_loss, interlevel_loss
+from nerfstudio.model_components.losses import DepthLossType, depth_loss, distortion_loss, interlevel_loss
 from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRenderer
 from nerfstudio.model_components.scene_colliders import NearFarCollider
 from nerfstudio.models.base_model import Model, ModelConfig
@@ -141,6 +141,14 @@ class SSNeRFModelConfig(ModelConfig):
     fixed weighted sum."""
     balance_every: int = 100
     """Steps between two measurements of the balancing's gradient norms (each costs one backward pass per loss)."""
+    depth_loss_mult: float = 0.0
+    """Weight of a depth loss on the rays whose frame has a depth map (`depth_file_path`): nerfstudio's depth-nerfacto
+    loss (`depth_loss_type`), on every level's weights (the proposal networks' too). 0: depth is scored, never trained
+    (the paper's, whose data has no depth)."""
+    depth_loss_type: DepthLossType = DepthLossType.DS_NERF
+    """Depth loss: DS-NeRF's (weights pulled into a narrow window around the true depth) or URF's."""
+    depth_sigma: float = 0.01
+    """Width of the depth loss's window around the true depth, in scene units (as nerfstudio's `depth_sigma`)."""
     encoder_init: Optional[Path] = None
     """Checkpoint (.ckpt) of a trained SS-NeRF of the same method whose F_enc initialises this one's at the first step;
     decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
@@ -285,6 +293,10 @@ class SSNeRFModel(Model):
         if self.training and result.weights_list:
             outputs["weights_list"] = result.weights_list
             outputs["ray_samples_list"] = result.ray_samples_list
+        if self.training and self.config.depth_loss_mult > 0:  # every level's weights, proposals included
+            levels = result.levels
+            outputs["depth_weights_list"] = result.weights_list or [level.weights for level in levels]
+            outputs["depth_ray_samples_list"] = result.ray_samples_list or [level.ray_samples for level in levels]
         return outputs
 
     def get_rgba_image(self, outputs: Dict[str, Tensor], output_name: str = "rgb") -> Tensor:
@@ -337,7 +349,23 @@ class SSNeRFModel(Model):
             )
             assert metrics_dict is not None
             losses["distortion_loss"] = self.config.distortion_loss_mult * metrics_dict["distortion"]
+        if self.training and "depth_weights_list" in outputs and DEPTH_KEY in batch:
+            losses["depth_loss"] = self.config.depth_loss_mult * self.depth_loss(outputs, batch)
         return losses
+
+    def depth_loss(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor]) -> Tensor:
+        """nerfstudio's depth loss against the frames' z-depth maps, averaged over the levels (as depth-nerfacto).
+        Pixels without depth (0) carry none."""
+        truth = batch[DEPTH_KEY].to(self.device) * self.dataparser_scale
+        truth = torch.where(torch.isfinite(truth), truth, torch.zeros_like(truth))
+        levels = list(zip(outputs["depth_weights_list"], outputs["depth_ray_samples_list"]))
+        sigma = torch.tensor([self.config.depth_sigma], device=self.device)
+        return sum(
+            depth_loss(weights=weights, ray_samples=ray_samples, termination_depth=truth,
+                       predicted_depth=outputs["depth"], sigma=sigma, directions_norm=outputs["directions_norm"],
+                       is_euclidean=False, depth_loss_type=self.config.depth_loss_type)
+            for weights, ray_samples in levels
+        ) / len(levels)
 
     @property
     def display_output_names(self) -> List[str]:
