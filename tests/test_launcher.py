@@ -28,12 +28,15 @@ QUICK = ["--quick", "--launcher", "ray", "--cpus-per-run", "1"]
 
 
 def driver(output: Path, *arguments: str) -> subprocess.Popen:
-    """`ssnerf-benchmark` with the Ray launcher as a user starts it: its own process, its own local Ray instance
-    (every core of this machine: 2 workers of 1 CPU here)."""
+    """`ssnerf-benchmark` with the Ray launcher as a user starts it from a terminal: its own process, its own local
+    Ray instance (every core of this machine: 2 workers of 1 CPU here)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "RAY_AUTH_MODE": "disabled"}
     command = [sys.executable, "-m", "ssnerf_method.experiments.benchmark", *QUICK, "--output", str(output),
                *arguments]
-    return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    # Ctrl-C reaches it as in a terminal even when pytest itself was started in the background (where SIGINT is
+    # ignored and a child Python would inherit that)
+    return subprocess.Popen(command, env=env, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
 
 
 def finished(process: subprocess.Popen, timeout: float = 1500) -> str:
