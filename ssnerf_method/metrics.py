@@ -338,7 +338,8 @@ def add_statistics(total: Statistics, more: Statistics) -> Statistics:
 
 
 DEPTH_METRIC = "depth"
-"""Metric (and metric-name prefix) of rendered depth against the data's depth maps; depth is scored, not trained."""
+"""Metric (and metric-name prefix) of rendered depth against the data's depth maps; depth is scored, and trained only
+with the model's `depth_loss_mult` above 0."""
 
 
 def summarize(statistics: Dict[str, Statistics], specs: Sequence[PropertySpec]) -> Dict[str, float]:
