@@ -518,8 +518,9 @@ class ViewerServer:
         self.stop()
 
     def start(self) -> None:
+        # eval_utils before writer: nerfstudio's imports are circular, and writer first fails in a fresh process
+        from nerfstudio.utils.eval_utils import eval_setup  # noqa: I001
         from nerfstudio.utils import writer
-        from nerfstudio.utils.eval_utils import eval_setup  # (before `writer`: nerfstudio's imports are circular)
         from nerfstudio.viewer.viewer import Viewer
 
         config, pipeline, _, step = eval_setup(self.config_path, eval_num_rays_per_chunk=None, test_mode="test")
