@@ -460,6 +460,11 @@ def labelled_properties() -> List[PropertySpec]:
     return [spec for spec in REGISTRY.values() if spec.label_maker is not None]
 
 
+def class_property() -> PropertySpec:
+    """The registry's class-valued property (semantics): what annotations and the viewer's strokes label."""
+    return next(spec for spec in REGISTRY.values() if spec.kind.categorical)
+
+
 def resolve_properties(
     names: Sequence[str],
     branches: Optional[Dict[str, Branch]] = None,

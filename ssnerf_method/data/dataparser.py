@@ -16,8 +16,12 @@ from nerfstudio.plugins.registry_dataparser import DataParserSpecification
 from nerfstudio.utils.io import load_from_json
 
 from ssnerf_method.data.pose_metadata import add_pose_metadata
+from ssnerf_method.data.strokes import STROKES_FILE, StrokeStore, merged_classes
 from ssnerf_method.data.validate import transforms_file, validate_dataset
-from ssnerf_method.properties import REGISTRY
+from ssnerf_method.properties import REGISTRY, class_property
+
+STROKES_METADATA_KEY = "strokes"
+"""Metadata key of the dataset's `StrokeStore` (present when the dataset trains classes)."""
 
 
 @dataclass
@@ -36,6 +40,7 @@ class SSNeRFDataParser(Nerfstudio):
 
     config: SSNeRFDataParserConfig
     _validated: bool = False
+    _strokes: Optional[StrokeStore] = None
 
     def _generate_dataparser_outputs(self, split: str = "train", **kwargs) -> DataparserOutputs:
         if not self._validated:  # once per parser: train and eval splits share the files
@@ -55,8 +60,18 @@ class SSNeRFDataParser(Nerfstudio):
             property_files[spec.name] = [
                 data_dir / frame[spec.file_key] if spec.file_key in frame else None for frame in output_frames
             ]
-        classes = meta.get("semantic_classes")
-        colors = meta.get("semantic_colors")
+        declared = list(meta.get("semantic_classes") or [])
+        classes, colors = declared, meta.get("semantic_colors")
+        strokes = None
+        labelled_classes = class_property()
+        if declared or labelled_classes.name in property_files or (data_dir / STROKES_FILE).exists():
+            # classes can be trained: from label files, or from strokes painted in the viewer (the dataset declares
+            # its classes, e.g. `ssnerf-label DATA --semantic-classes ...`, and may have no label file at all)
+            if self._strokes is None:
+                self._strokes = StrokeStore.of_dataset(data_dir)
+            strokes = self._strokes
+            classes, _ = merged_classes(declared, strokes)
+            property_files.setdefault(labelled_classes.name, [None] * len(output_frames))
 
         label_sizes = [
             (int(frame.get("w", meta.get("w", 0))), int(frame.get("h", meta.get("h", 0)))) for frame in output_frames
@@ -65,8 +80,10 @@ class SSNeRFDataParser(Nerfstudio):
             {
                 "property_files": property_files,
                 "available_properties": tuple(property_files),
-                "semantic_classes": classes or [],
+                "semantic_classes": classes,
                 "semantic_colors": colors,
+                "declared_classes": len(declared),
+                STROKES_METADATA_KEY: strokes,
                 "label_sizes": label_sizes,
                 "dataparser_scale": float(outputs.dataparser_scale),
             }

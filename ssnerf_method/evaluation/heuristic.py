@@ -67,16 +67,18 @@ def pose_distance(a: PinholeView, b: PinholeView, angle_weight: float = ANGLE_WE
 
 
 def nearest_view_copy(
-    train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, angle_weight: float = ANGLE_WEIGHT
+    train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, angle_weight: float = ANGLE_WEIGHT,
+    sources: Optional[Sequence[int]] = None,
 ) -> Callable[[Cameras, int], Dict[str, Tensor]]:
     """A predictor that copies the labels (RGB included) of the training view nearest to each camera, ranked as the
     Heuristic ranks its sources, with no warp: the floor every method should beat (the demo's "nearest training
-    view" row)."""
-    views = [PinholeView.from_cameras(train.cameras, index) for index in range(len(train))]
+    view" row). `sources`: the training views it may copy (default: all; e.g. only the labelled ones)."""
+    views = {index: PinholeView.from_cameras(train.cameras, index)
+             for index in (range(len(train)) if sources is None else sources)}
 
     def predict(cameras: Cameras, index: int) -> Dict[str, Tensor]:
         target = PinholeView.from_cameras(cameras, index)
-        nearest = min(range(len(views)), key=lambda source: pose_distance(target, views[source], angle_weight))
+        nearest = min(views, key=lambda source: pose_distance(target, views[source], angle_weight))
         item = train[nearest]
         return {spec.name: spec.kind.label_as_prediction(spec.label(item, num_classes), num_classes) for spec in specs}
 
@@ -156,13 +158,16 @@ class HeuristicBaseline:
     def __init__(
         self, train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, dataparser_scale: float,
         config: Optional[HeuristicBaselineConfig] = None, depth: Optional[DepthSource] = None,
+        sources: Optional[Sequence[int]] = None,
     ) -> None:
         self.train = train
         self.specs = [spec for spec in specs if spec.file_key is not None]
         self.num_classes = num_classes
         self.config = config or HeuristicBaselineConfig()
         self.depth_source = depth or dataset_depth(train, dataparser_scale)
-        self.views = [PinholeView.from_cameras(train.cameras, index) for index in range(len(train))]
+        self.sources = list(range(len(train)) if sources is None else sources)
+        """The training views it warps from (default: all; e.g. only the labelled ones)."""
+        self.views = {index: PinholeView.from_cameras(train.cameras, index) for index in self.sources}
         self._items: Dict[int, Dict[str, Tensor]] = {}
         self._depths: Dict[int, np.ndarray] = {}
 
@@ -179,8 +184,8 @@ class HeuristicBaseline:
         return self._items[index]
 
     def source_order(self, target: PinholeView) -> List[int]:
-        distances = [pose_distance(target, view, self.config.angle_weight) for view in self.views]
-        return list(np.argsort(distances, kind="stable"))
+        distances = [pose_distance(target, self.views[index], self.config.angle_weight) for index in self.sources]
+        return [self.sources[rank] for rank in np.argsort(distances, kind="stable")]
 
     def predict_view(self, cameras: Cameras, index: int) -> Dict[str, Tensor]:
         """Each property's prediction (in the model's prediction layout) for camera `index` of `cameras`."""

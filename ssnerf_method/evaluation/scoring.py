@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Callable, Dict, Sequence
+from typing import Callable, Dict, Optional, Sequence
 
 from torch import Tensor
 
@@ -17,12 +17,13 @@ Predictor = Callable[[Cameras, int], Dict[str, Tensor]]
 
 
 def score_predictor(
-    predict: Predictor, dataset: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int
+    predict: Predictor, dataset: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int,
+    views: Optional[Sequence[int]] = None,
 ) -> Dict[str, float]:
-    """Split-level metrics (`metrics`) of `predict` on every view of `dataset`, for the properties it
-    predicts among `specs`."""
+    """Split-level metrics (`metrics`) of `predict` on the views of `dataset` (`views`, default every one), for the
+    properties it predicts among `specs`."""
     totals: Dict[str, Statistics] = {}
-    for index in range(len(dataset)):
+    for index in range(len(dataset)) if views is None else views:
         predictions = predict(dataset.cameras, index)
         item = dataset[index]
         for spec in specs:

@@ -27,6 +27,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataset import DEPTH_KEY
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY, add_pose_metadata
+from ssnerf_method.data.strokes import StrokeStore, WorldFrame
 from ssnerf_method.fields.encoders import (
     HashGridEncoder,
     PositionalMLPEncoder,
@@ -56,6 +57,7 @@ from ssnerf_method.rendering.sampling import (
     SampleLevel,
     SamplingResult,
 )
+from ssnerf_method.viewer.label_panel import LabelPanel
 from ssnerf_method.viewer.semantic_panel import SemanticViewerPanel, highlight_class
 
 
@@ -149,6 +151,9 @@ class SSNeRFModelConfig(ModelConfig):
     """Depth loss: DS-NeRF's (weights pulled into a narrow window around the true depth) or URF's."""
     depth_sigma: float = 0.01
     """Width of the depth loss's window around the true depth, in scene units (as nerfstudio's `depth_sigma`)."""
+    spare_classes: int = 0
+    """Semantic class slots beyond the dataset's classes, for classes added in the viewer's Label panel while
+    training (a new class takes the next free slot). 0: classes can only come from the dataset."""
     encoder_init: Optional[Path] = None
     """Checkpoint (.ckpt) of a trained SS-NeRF of the same method whose F_enc initialises this one's at the first step;
     decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
@@ -163,7 +168,6 @@ class SSNeRFModel(Model):
         super().populate_modules()
         metadata = self.kwargs.get("metadata") or {}
         self.class_names: List[str] = list(metadata.get("semantic_classes") or [])
-        self.num_classes = len(self.class_names)
         available = metadata.get("available_properties", OPTIONAL_PROPERTIES)
         dropped = [name for name in self.config.properties if name not in available]
         if dropped:
@@ -175,11 +179,16 @@ class SSNeRFModel(Model):
             normals_mode=self.config.normals_mode,
             losses=self.config.losses,
         )
+        self.class_spec = next((spec for spec in self.specs if isinstance(spec.kind, ClassKind)), None)
+        # class slots: the dataset's declared classes plus `spare_classes` for classes added in the viewer (fixed by
+        # the dataset, not by what the strokes file holds, so a checkpoint always fits the model built to load it)
+        declared = int(metadata.get("declared_classes", len(self.class_names)))
+        spare = self.config.spare_classes if self.class_spec is not None else 0
+        self.num_classes = max(len(self.class_names), declared + spare)
         # world units per metre (the dataparser rescales poses); depth metrics are reported in metres
         self.dataparser_scale = float(metadata.get("dataparser_scale", 1.0))
         self.register_buffer("palette", semantic_palette(self.num_classes, metadata.get("semantic_colors")))
         # the viewer's legend and class picker, when the model renders classes
-        self.class_spec = next((spec for spec in self.specs if isinstance(spec.kind, ClassKind)), None)
         self.semantic_classes = None if self.class_spec is None else SemanticViewerPanel(self.class_names, self.palette)
 
         balanced = [spec.name for spec in self.specs if spec is not self.rgb_spec]
@@ -193,6 +202,20 @@ class SSNeRFModel(Model):
         self.collider = NearFarCollider(near_plane=self.config.near_plane, far_plane=self.config.far_plane)
         self.renderer_depth = DepthRenderer(method="median")
         self.renderer_accumulation = AccumulationRenderer()
+
+    def add_label_panel(self, store: StrokeStore, frame: WorldFrame, image_height: int, training: bool) -> None:
+        """The viewer's Label panel under the semantics panel (`viewer/label_panel.py`), when the model renders
+        classes: strokes painted there go to `store`; a class added there joins `class_names` and "Show class"."""
+        if self.class_spec is None or self.semantic_classes is None:
+            return
+        panel = self.semantic_classes
+
+        def new_class(names: List[str]) -> None:
+            self.class_names = names
+            panel.set_classes(names)
+
+        self.semantic_labelling = LabelPanel(store, frame, self.class_names, self.num_classes, self.palette,
+                                             image_height, training, on_new_class=new_class)
 
     def _build_field(self) -> SSNeRFField:
         encoder: PositionEncoder
@@ -317,7 +340,9 @@ class SSNeRFModel(Model):
         return next(spec for spec in self.specs if spec.label_key == "image")
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, Tensor]:
-        mse = torch.mean((outputs[self.rgb_spec.prediction_key] - batch["image"].to(self.device)[..., :3]) ** 2)
+        label = self.rgb_spec.label(batch, self.num_classes).to(self.device)
+        valid = self.rgb_spec.kind.valid(label)  # (rays painted in the viewer have no colour)
+        mse = torch.mean((outputs[self.rgb_spec.prediction_key][valid] - label[valid]) ** 2)
         metrics = {"psnr": -10.0 * torch.log10(mse)}
         if self.training and "weights_list" in outputs:
             metrics["distortion"] = distortion_loss(outputs["weights_list"], outputs["ray_samples_list"])

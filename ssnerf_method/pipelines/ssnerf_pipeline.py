@@ -52,6 +52,13 @@ class SSNeRFPipeline(VanillaPipeline):
 
     config: SSNeRFPipelineConfig
 
+    def __init__(self, config: SSNeRFPipelineConfig, device: str, test_mode: str = "val", *args, **kwargs) -> None:
+        super().__init__(config, device, test_mode, *args, **kwargs)
+        strokes = getattr(self.datamanager, "strokes", None)
+        if strokes is not None and hasattr(self.model, "add_label_panel"):
+            height = int(self.datamanager.train_dataset.cameras.height.max())
+            self.model.add_label_panel(strokes, self.datamanager.world_frame, height, training=test_mode == "val")
+
     def get_train_loss_dict(self, step: int):
         """nerfstudio's training step, then one check (a single device sync) that every loss is finite."""
         model_outputs, loss_dict, metrics_dict = super().get_train_loss_dict(step)

@@ -20,7 +20,10 @@ def default_palette(num_classes: int) -> Float[Tensor, "classes 3"]:
 
 
 def semantic_palette(num_classes: int, colors: Optional[Sequence[Sequence[int]]] = None) -> Float[Tensor, "classes 3"]:
-    """Palette in [0, 1] from 0-255 triples when the dataset gives them."""
-    if colors is None:
-        return default_palette(num_classes)
-    return torch.tensor(colors, dtype=torch.float32) / 255.0
+    """Palette in [0, 1] from 0-255 triples when the dataset gives them; classes after the given colours (added in
+    the viewer, or spare class slots) take `default_palette`'s."""
+    palette = default_palette(num_classes)
+    if colors:
+        given = torch.tensor(colors, dtype=torch.float32)[:num_classes] / 255.0
+        palette = torch.cat([given, palette[len(given):]]) if len(given) < num_classes else given
+    return palette

@@ -1,5 +1,6 @@
 """`ssnerf-study`: the paper's studies, one subcommand each (`experiments/studies.py` for branches, rgb and multitask;
-`experiments/transfer.py`, `experiments/augmentation.py`, `experiments/autolabel.py`, `experiments/sparsity.py`)."""
+`experiments/transfer.py`, `experiments/augmentation.py`, `experiments/autolabel.py`, `experiments/sparsity.py`,
+`experiments/propagation.py`)."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.experiments import presets
 from ssnerf_method.experiments.augmentation import AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
+from ssnerf_method.experiments.propagation import PropagationStudy
 from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy
 from ssnerf_method.experiments.transfer import TransferStudy
@@ -24,6 +26,7 @@ STUDIES: Dict[str, Type] = {
     "augmentation": AugmentationStudy,
     "autolabel": AutoLabelStudy,
     "sparsity": SparsityStudy,
+    "propagation": PropagationStudy,
 }
 """Each subcommand's study."""
 

@@ -35,6 +35,12 @@ class SemanticViewerPanel(nn.Module):
             colour = tuple(int(round(float(value) * 255)) for value in palette[index])
             setattr(self, f"legend_{index:03d}", ViewerRGB(entry, colour, disabled=True, hint="Legend: class colour"))
 
+    def set_classes(self, class_names: Sequence[str]) -> None:
+        """Offer `class_names` in "Show class" (a class added in the Label panel; the legend keeps its entries)."""
+        self.class_names = list(class_names)
+        self.entries = [f"{index}: {name}" for index, name in enumerate(self.class_names)]
+        self.class_shown.set_options([ALL_CLASSES, *self.entries])
+
     @property
     def highlighted_class(self) -> Optional[int]:
         """The class picked in the viewer, or None for all classes."""

@@ -1,0 +1,84 @@
+"""A pixel sampler that gives sparse labels their share of every batch.
+
+A label on a few frames, or on a few pixels per frame (Semantic-NeRF's sparse setting), is almost never hit by
+uniformly sampled rays: with one labelled pixel per class per frame, a 1024-ray batch holds a labelled pixel every
+few steps. When a property's labels cover less than `sparse_label_fraction` of the training pixels, this sampler
+replaces `labelled_rays_per_batch` of each batch's uniform rays by pixels drawn from its labelled ones (all their
+labels come along, RGB included). Densely labelled data is sampled exactly as nerfstudio's `PixelSampler` does.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Optional, Tuple, Type
+
+import torch
+from jaxtyping import Int
+from torch import Tensor
+
+from nerfstudio.data.pixel_samplers import PixelSampler, PixelSamplerConfig
+
+from ssnerf_method.properties import REGISTRY
+
+
+@dataclass
+class LabelledPixelSamplerConfig(PixelSamplerConfig):
+    """nerfstudio's pixel sampler, plus a share of labelled pixels for sparsely labelled properties."""
+
+    _target: Type = field(default_factory=lambda: LabelledPixelSampler)
+    labelled_rays_per_batch: int = 256
+    """Rays of each batch drawn from the labelled pixels of a sparsely labelled property (shared between such
+    properties; at most half the batch)."""
+    sparse_label_fraction: float = 0.5
+    """A property whose labels cover less than this fraction of the training pixels counts as sparsely labelled."""
+
+
+class LabelledPixelSampler(PixelSampler):
+    """Uniform pixels, plus pixels drawn from the labelled ones of sparsely labelled properties."""
+
+    config: LabelledPixelSamplerConfig
+
+    def __init__(self, config: LabelledPixelSamplerConfig, **kwargs) -> None:
+        super().__init__(config, **kwargs)
+        self._cache: Optional[Tuple[int, Tuple[int, ...], Dict[str, Tensor]]] = None
+
+    def sparse_pixels(self, image_batch: Dict) -> Dict[str, Int[Tensor, "pixels 3"]]:
+        """Per sparsely labelled property, its labelled pixels as (image in batch, row, column). Computed once for a
+        cached batch of images (nerfstudio hands the same batch every step when all images fit)."""
+        images = image_batch["image"]
+        key = (id(images), tuple(images.shape))
+        if self._cache is not None and self._cache[:2] == key:
+            return self._cache[2]
+        sparse = {}
+        for spec in REGISTRY.values():
+            if spec.file_key is None or spec.name not in image_batch:
+                continue
+            valid = spec.kind.valid(image_batch[spec.name])
+            if image_batch.get("mask") is not None:  # (pixels a mask excludes are never sampled)
+                valid = valid & image_batch["mask"][..., 0].bool()
+            fraction = float(valid.float().mean())
+            if 0.0 < fraction < self.config.sparse_label_fraction:
+                sparse[spec.name] = torch.nonzero(valid)
+        self._cache = (*key, sparse)
+        return sparse
+
+    def sample(self, image_batch: Dict) -> Dict:
+        if not isinstance(image_batch["image"], Tensor) or self.config.labelled_rays_per_batch <= 0:
+            return super().sample(image_batch)
+        sparse = self.sparse_pixels(image_batch)
+        if not sparse:
+            return super().sample(image_batch)
+        mixed = min(self.config.labelled_rays_per_batch, self.num_rays_per_batch // 2)
+        batch = self.collate_image_dataset_batch(image_batch, self.num_rays_per_batch - mixed,
+                                                 keep_full_image=self.config.keep_full_image)
+        shares = torch.tensor_split(torch.arange(mixed), len(sparse))
+        picks = torch.cat([pixels[torch.randint(len(pixels), (len(share),), device=pixels.device)]
+                           for pixels, share in zip(sparse.values(), shares)])
+        index, rows, columns = picks.unbind(-1)
+        extra = {key: value[index, rows, columns] for key, value in image_batch.items()
+                 if key != "image_idx" and value is not None}
+        extra["indices"] = torch.stack([image_batch["image_idx"][index.cpu()].to(picks), rows, columns], dim=-1)
+        extra["indices"] = extra["indices"].to(batch["indices"])
+        for key, value in extra.items():
+            batch[key] = torch.cat([batch[key], value.to(batch[key].device)])
+        return batch

@@ -1,0 +1,338 @@
+"""`ssnerf-study propagation`: how little semantic labelling is enough.
+
+On each scene it trains the single-property semantics SS-NeRF (RGB + semantics, as the benchmark's `ssnerf-semantics`)
+on copies of the scene that keep less of the training frames' semantic labels:
+
+- k densely labelled training frames (evenly spaced along the trajectory), for each k of `--frames`, and every
+  frame (the benchmark's own run, shared);
+- c labelled pixels per class per training frame (Semantic-NeRF's sparse-label setting), for each c of `--pixels`,
+  drawn at random from each class's pixels of the frame.
+
+Each model is scored on the test views (mIoU, as `ns-eval` computes it) and on the training views that have no
+label (evenly chosen, at most `--train-views-scored` of them; all training views for the pixel settings, whose
+pixels are nearly all unlabelled), against the frames' true labels. Beside it, two baselines made from the same labels:
+the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the model's
+rendered depth) and the nearest labelled frame copied. Writes `study_propagation.md` / `.json` and
+`figure_propagation.png` (mIoU against labelling effort, a curve per method).
+
+The copies are `transforms.json` files under `OUTPUT/propagation/` that list every frame of the scene (so nerfstudio
+orients and scales the poses exactly as for the full scene) with absolute paths into it; a pixel setting's sparse
+labels are PNGs beside its transforms. The scene itself is not touched.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple
+
+import numpy as np
+import torch
+from PIL import Image
+
+from nerfstudio.pipelines.base_pipeline import Pipeline
+from nerfstudio.utils.rich_utils import CONSOLE
+
+from ssnerf_method.atomic import write_text_atomic
+from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
+from ssnerf_method.data.dataset import SSNeRFDataset
+from ssnerf_method.data.io import StagedOutputFolder
+from ssnerf_method.evaluation.heuristic import HeuristicBaseline, nearest_view_copy
+from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.experiments.benchmark import (
+    BenchmarkConfig,
+    ModelRun,
+    SceneBenchmark,
+    generated_scenes,
+    rendered_depth,
+)
+from ssnerf_method.experiments.launcher import Job, launch
+from ssnerf_method.experiments.report import average, markdown
+from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
+from ssnerf_method.experiments.transfer import PATH_KEYS, evenly_spaced
+from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
+from ssnerf_method.properties import REGISTRY, class_property
+
+SSNERF, SSNERF_TRAIN = "SS-NeRF", "SS-NeRF, unlabelled training views"
+HEURISTIC, NEAREST = "Heuristic (labelled frames)", "Nearest labelled frame copied"
+METHODS = (SSNERF, SSNERF_TRAIN, HEURISTIC, NEAREST)
+"""The study's columns: SS-NeRF on the test views and on the unlabelled training views, then the two baselines (on
+the test views)."""
+ALL_FRAMES = "all frames"
+
+
+@dataclass(frozen=True)
+class Setting:
+    """One amount of labelling: k densely labelled frames (`frames`), c pixels per class per frame (`pixels`), or
+    every frame's labels (neither)."""
+
+    frames: Optional[int] = None
+    pixels: Optional[int] = None
+
+    @property
+    def name(self) -> str:
+        if self.frames is not None:
+            return f"{self.frames} frame{'s' if self.frames > 1 else ''}"
+        if self.pixels is not None:
+            return f"{self.pixels} px/class/frame"
+        return ALL_FRAMES
+
+    def folder(self, scene: Path) -> str:
+        suffix = f"{self.frames}frames" if self.frames is not None else f"{self.pixels}pixels"
+        return f"{scene.name}-{suffix}"
+
+
+def split_images(scene: Path) -> Tuple[List[Path], List[Path]]:
+    """The scene's training and test images (absolute), as nerfstudio's parser splits them."""
+    parser = SSNeRFDataParserConfig(data=scene).setup()
+    return ([Path(name).resolve() for name in parser.get_dataparser_outputs("train").image_filenames],
+            [Path(name).resolve() for name in parser.get_dataparser_outputs("test").image_filenames])
+
+
+def sparse_pixels(label: np.ndarray, count: int, rng: np.random.Generator) -> np.ndarray:
+    """`label` keeping `count` random pixels of each class it has (all of a class with fewer), the rest unlabelled."""
+    kept = np.full_like(label, SEMANTIC_IGNORE)
+    flat, out = label.reshape(-1), kept.reshape(-1)
+    for class_id in np.unique(flat):
+        if class_id == SEMANTIC_IGNORE:
+            continue
+        pixels = np.flatnonzero(flat == class_id)
+        chosen = rng.choice(pixels, size=min(count, len(pixels)), replace=False)
+        out[chosen] = class_id
+    return kept
+
+
+def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, seed: int = 0) -> Dict[str, Any]:
+    """Write `destination/transforms.json`: every frame of the scene with its labels, but the training frames'
+    semantics cut down to `setting` (test frames keep theirs). Returns what was kept: the labelled training images
+    and the fraction of training pixels labelled."""
+    key = class_property().file_key
+    train = {str(path) for path in split_images(scene)[0]}
+    root = scene.resolve()
+    meta = json.loads((scene / "transforms.json").read_text())
+    keys = {*PATH_KEYS, *(spec.file_key for spec in REGISTRY.values() if spec.file_key is not None)}
+    ordered = [image for image in (str((root / frame["file_path"]).resolve()) for frame in meta["frames"])
+               if image in train]
+    chosen = set(train) if setting.frames is None else set(evenly_spaced(ordered, setting.frames))
+    for split in ("train_filenames", "val_filenames", "test_filenames"):
+        if split in meta:
+            meta[split] = [str(root / name) for name in meta[split]]
+    rng = np.random.default_rng(seed)
+    labelled = total = 0
+    with StagedOutputFolder(destination, overwrite=True) as folder:
+        for frame in meta["frames"]:
+            frame.update({name: str(root / frame[name]) for name in keys if name in frame})
+            image = str(Path(frame["file_path"]).resolve())  # (absolute now)
+            if image not in train or key not in frame:
+                continue
+            label = np.asarray(Image.open(frame[key]))
+            total += label.size
+            if image not in chosen:
+                del frame[key]
+                continue
+            if setting.pixels is not None:
+                label = sparse_pixels(label, setting.pixels, rng)
+                relative = Path("semantics") / Path(frame["file_path"]).name
+                (folder / relative).parent.mkdir(parents=True, exist_ok=True)
+                Image.fromarray(label).save(folder / relative.with_suffix(".png"))
+                frame[key] = str((destination / relative.with_suffix(".png")).resolve())
+            labelled += int((label != SEMANTIC_IGNORE).sum())
+        kept = sorted(image for image in chosen)
+        meta["ssnerf_propagation"] = {"scene": str(root), "setting": setting.name, "labelled_frames": kept,
+                                      "labelled_pixel_fraction": labelled / max(total, 1)}
+        (folder / "transforms.json").write_text(json.dumps(meta, indent=2) + "\n")  # (the folder is staged)
+    return meta["ssnerf_propagation"]
+
+
+@dataclass
+class PropagationStudy(StudyConfig):
+    """Semantics from k labelled frames, or from c labelled pixels per class per frame, against every frame's
+    labels; SS-NeRF beside the Heuristic and the nearest labelled frame, from the same labels."""
+
+    frames: Tuple[int, ...] = (1, 2, 4, 8)
+    """Numbers k of densely labelled training frames (evenly spaced); the model trained on every frame's labels is
+    always added."""
+    pixels: Tuple[int, ...] = (1, 5, 25)
+    """Numbers c of labelled pixels per class per training frame."""
+    seed: int = 0
+    """Seed of the random pixels of the pixel settings."""
+    train_views_scored: int = 12
+    """Unlabelled training views scored per model (evenly spaced among them)."""
+
+    name = "propagation"
+    scope = ("Each row trains the semantics SS-NeRF (RGB + semantics) on the scene with less of its training frames' "
+             "semantic labels; mIoU on the test views as `ns-eval` computes it, and on training views without labels.")
+
+    def settings(self) -> List[Setting]:
+        frames, pixels = ((1, 2), (1,)) if self.quick and (self.frames, self.pixels) == (
+            PropagationStudy.frames, PropagationStudy.pixels) else (self.frames, self.pixels)
+        return [*(Setting(frames=k) for k in frames), Setting(), *(Setting(pixels=c) for c in pixels)]
+
+    def benchmarks(self, config: BenchmarkConfig) -> Dict[Tuple[str, Setting], SceneBenchmark]:
+        """Per (scene, setting): the benchmark of its labelled copy (the scene itself for every frame's labels)."""
+        config = BenchmarkConfig(**{**vars(config), "properties": (class_property().name,),
+                                    "all_properties_model": False})
+        scenes = list(config.scenes) or generated_scenes(config)
+        benches = {}
+        for scene in scenes:
+            for setting in self.settings():
+                if setting == Setting():
+                    benches[(scene.name, setting)] = SceneBenchmark(config, scene, scene.name)
+                    continue
+                root = config.output / "propagation" / setting.folder(scene)
+                if not (root / "transforms.json").is_file():
+                    make_propagation_dataset(scene, root, setting, self.seed)
+                benches[(scene.name, setting)] = SceneBenchmark(config, root, root.name)
+        return benches
+
+    @staticmethod
+    def run_of() -> ModelRun:
+        name = class_property().name
+        return ModelRun(single(name), (name,))
+
+    def jobs(self, config: BenchmarkConfig, scenes: List[Path]) -> List[Job]:
+        return [bench.job(self.run_of()) for bench in self.benchmarks(config).values()]
+
+    def run(self) -> Results:
+        """Train every setting's model, score it and the baselines, write the report and the figure."""
+        start = time.time()
+        config = self.benchmark_config()
+        config.output.mkdir(parents=True, exist_ok=True)
+        benches = self.benchmarks(config)
+        launch(config, [bench.job(self.run_of()) for bench in benches.values()])
+        results: Results = {}
+        details: Dict[str, Any] = {}
+        for (scene, setting), bench in benches.items():
+            CONSOLE.print(f"[bold]propagation study, {scene}: {setting.name}")
+            results.setdefault(scene, {})[setting.name] = self.score(bench, setting)
+            details.setdefault(scene, {})[setting.name] = {
+                key: results[scene][setting.name].get(key) for key in ("train_seconds", "seed", "config", "dataset")}
+        self.figure(results, config.output / "figure_propagation.png")
+        write_study_report(self, results, details, time.time() - start)
+        return results
+
+    def score(self, bench: SceneBenchmark, setting: Setting) -> Dict[str, Any]:
+        """A setting's model trained and scored (test views, unlabelled training views) and the two baselines,
+        computed once and kept in `propagation-<method>-<steps>.json` in its runs folder."""
+        run = self.run_of()
+        metrics = bench.train_and_score(run)
+        if "failed" in metrics:
+            return metrics
+        cache = bench.folder / f"propagation-{bench.config.method}-{bench.tag}.json"
+        if cache.is_file():
+            return {**json.loads(cache.read_text()), **self._record(metrics, bench)}
+        spec = class_property()
+        key = spec.metric_prefix + "miou"
+        pipeline = bench.load(run.name)
+        train: SSNeRFDataset = pipeline.datamanager.train_dataset  # type: ignore[assignment]
+        num_classes = len(train.metadata.get("semantic_classes", []))
+        labelled = [index for index in range(len(train)) if train.metadata["property_files"][spec.name][index]]
+        truth = self.true_labels(bench, train)
+        unlabelled = [index for index in range(len(train)) if setting.pixels is not None or index not in labelled]
+        scored = [unlabelled[int(i)] for i in np.unique(np.linspace(0, len(unlabelled) - 1,
+                                                                     min(self.train_views_scored, len(unlabelled)))
+                                                         .round())] if unlabelled else []
+        test = bench.test_dataset(pipeline)
+        scores: Dict[str, Any] = {SSNERF: metrics.get(key)}
+        scores[SSNERF_TRAIN] = score_predictor(model_predictor(pipeline), truth, [spec], num_classes,
+                                               views=scored).get(key) if scored else None
+        depth = None if train.depth_files is not None else rendered_depth(pipeline, train.cameras)
+        heuristic = HeuristicBaseline(train, [spec], num_classes, train.metadata["dataparser_scale"],
+                                      bench.config.heuristic, depth, sources=labelled)
+        nearest = nearest_view_copy(train, [spec], num_classes, bench.config.heuristic.angle_weight, sources=labelled)
+        scores[HEURISTIC] = score_predictor(heuristic.predict_view, test, [spec], num_classes).get(key)
+        scores[NEAREST] = score_predictor(nearest, test, [spec], num_classes).get(key)
+        scores["baselines on the unlabelled training views"] = {
+            HEURISTIC: score_predictor(heuristic.predict_view, truth, [spec], num_classes, views=scored).get(key),
+            NEAREST: score_predictor(nearest, truth, [spec], num_classes, views=scored).get(key),
+        } if scored else {}
+        propagation = json.loads((bench.scene / "transforms.json").read_text()).get("ssnerf_propagation", {})
+        scores.update(labelled_frames=len(labelled), training_frames=len(train), train_views_scored=len(scored),
+                      labelled_pixel_fraction=propagation.get("labelled_pixel_fraction", 1.0))
+        write_text_atomic(cache, json.dumps(scores, indent=2))
+        return {**scores, **self._record(metrics, bench)}
+
+    @staticmethod
+    def _record(metrics: Dict[str, Any], bench: SceneBenchmark) -> Dict[str, Any]:
+        return {"train_seconds": metrics.get("train_seconds"), "seed": metrics.get("seed"),
+                "config": metrics.get("config"), "dataset": str(bench.scene)}
+
+    @staticmethod
+    def true_labels(bench: SceneBenchmark, train: SSNeRFDataset) -> SSNeRFDataset:
+        """The training views with every label of the full scene (the copy's own lack them), in the copy's order."""
+        source = json.loads((bench.scene / "transforms.json").read_text()).get("ssnerf_propagation", {}).get("scene")
+        if source is None:
+            return train
+        parser = SSNeRFDataParserConfig(data=Path(source)).setup()
+        full = SSNeRFDataset(parser.get_dataparser_outputs("train"))
+        if [Path(name).name for name in full.image_filenames] != [Path(name).name for name in train.image_filenames]:
+            raise RuntimeError(f"{bench.scene}: its training views are not the scene's ({source}); remove the copy")
+        full.cameras = train.cameras  # the copy's world frame (the same poses, oriented and scaled alike)
+        return full
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        """Rows: the settings; columns: each method's mIoU (average over scenes), the share of the dense model's
+        mIoU, and the fraction of training pixels labelled."""
+        rows = []
+        for setting in self.settings():
+            runs = [scenes.get(setting.name, {}) for scenes in results.values()]
+            row: Dict[str, Any] = {"row": setting.name}
+            for method in METHODS:
+                row[method] = average([run.get(method) for run in runs])
+            dense = average([scenes.get(ALL_FRAMES, {}).get(SSNERF) for scenes in results.values()])
+            row["SS-NeRF / all frames"] = None if row[SSNERF] is None or not dense else row[SSNERF] / dense
+            row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
+            rows.append(row)
+        titles = [*METHODS, "SS-NeRF / all frames", "labelled pixels (fraction)"]
+        columns = [*METHODS, "SS-NeRF / all frames", "labelled pixels"]
+        per_scene = {scene: {name: {method: runs[name].get(method) for method in METHODS} for name in runs}
+                     for scene, runs in results.items()}
+        text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
+                + "\n\nFigure: `figure_propagation.png`.")
+        return text, {"propagation": rows, "per_scene": per_scene}
+
+    def figure(self, results: Results, path: Path) -> Path:
+        """mIoU against labelling effort (the fraction of training pixels labelled, log scale): a curve per method
+        for the frame settings and one for the pixel settings, the dense model as a line."""
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        _, data = self.tables(results)
+        rows = {row["row"]: row for row in data["propagation"]}
+        figure, axis = plt.subplots(figsize=(6.4, 4.0))
+        styles = {SSNERF: "o-", SSNERF_TRAIN: "o:", HEURISTIC: "s--", NEAREST: "^-."}
+        for family, marker_fill in (("frames", "full"), ("pixels", "none")):
+            chosen = [setting for setting in self.settings() if getattr(setting, family) is not None]
+            for method, style in styles.items():
+                points = [(rows[s.name]["labelled pixels"], rows[s.name][method]) for s in chosen
+                          if rows[s.name]["labelled pixels"] and rows[s.name][method] is not None]
+                if points:
+                    label = f"{method}, {'k labelled frames' if family == 'frames' else 'c pixels per class'}"
+                    axis.plot(*zip(*sorted(points)), style, fillstyle=marker_fill, label=label)
+        dense = rows.get(ALL_FRAMES, {}).get(SSNERF)
+        if dense is not None:
+            axis.axhline(dense, color="grey", linewidth=0.8, label="SS-NeRF, every frame labelled")
+        axis.set_xscale("log")
+        axis.set_xlabel("fraction of training pixels labelled")
+        axis.set_ylabel("semantics mIoU")
+        axis.legend(fontsize=6, loc="lower right")
+        figure.tight_layout()
+        figure.savefig(path, dpi=150)
+        plt.close(figure)
+        return path
+
+
+def model_predictor(pipeline: Pipeline):
+    """A trained pipeline as a predictor of its class property (rendered logits)."""
+    spec = class_property()
+
+    def predict(cameras, index: int) -> Dict[str, torch.Tensor]:
+        with torch.no_grad():
+            outputs = pipeline.model.render_camera(cameras[index : index + 1])  # type: ignore[attr-defined]
+        return {spec.name: outputs[spec.prediction_key].cpu()}
+
+    return predict

@@ -1,0 +1,217 @@
+"""The viewer's Label panel: paint classes on the render, and every painted pixel becomes a labelled ray.
+
+With "Paint" on, a click paints a disc of the brush's radius (nerfstudio's `ViewerControl` "click" callback) and a
+drag paints a box ("rect-select"), in the class picked. The painted pixels are the rays of the viewer's camera at
+the training images' height, and each stroke is appended to the dataset's strokes file (`data/strokes.py`) at once,
+so a crash loses nothing. While `ns-train` runs, the datamanager mixes stroke rays into every batch (semantic loss
+only) and the semantics output changes as you watch; in `ns-viewer`, strokes are saved for the next training.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, List, Optional, Sequence
+
+import numpy as np
+import torch
+from jaxtyping import Float
+from torch import Tensor, nn
+
+from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.viewer.viewer_elements import (
+    ViewerButton,
+    ViewerClick,
+    ViewerControl,
+    ViewerDropdown,
+    ViewerRectSelect,
+    ViewerRGB,
+    ViewerSlider,
+    ViewerText,
+)
+
+from ssnerf_method.data.strokes import Stroke, StrokeStore, WorldFrame
+
+OFF, BRUSH, BOX = "off", "brush: click", "box: drag"
+"""The "Paint" choices: viewer navigation as usual, a disc per click, a box per drag."""
+NO_CLASS = "(add a class first)"
+"""The class picker's only entry while the dataset has no class."""
+MAX_RAYS_PER_STROKE = 4096
+"""A larger box is painted on a regular subgrid of its pixels (neighbouring rays say the same thing)."""
+
+
+def disc_pixels(centre: Sequence[float], radius: float, width: int, height: int) -> np.ndarray:
+    """(N, 2) pixel (column, row) of the pixels whose centre lies within `radius` of `centre` (pixel units, the
+    image's top-left corner at 0); at least the pixel holding the centre."""
+    columns, rows = np.meshgrid(np.arange(width), np.arange(height))
+    inside = (columns + 0.5 - centre[0]) ** 2 + (rows + 0.5 - centre[1]) ** 2 <= radius**2
+    pixels = np.stack([columns[inside], rows[inside]], axis=-1)
+    if not len(pixels):
+        pixels = np.array([[min(max(int(centre[0]), 0), width - 1), min(max(int(centre[1]), 0), height - 1)]])
+    return pixels
+
+
+def box_pixels(corner_min: Sequence[float], corner_max: Sequence[float], width: int, height: int) -> np.ndarray:
+    """(N, 2) pixel (column, row) of the pixels whose centre lies in the box (fractions of the image), on a subgrid
+    when there are more than `MAX_RAYS_PER_STROKE`."""
+    x0, x1 = sorted((corner_min[0] * width, corner_max[0] * width))
+    y0, y1 = sorted((corner_min[1] * height, corner_max[1] * height))
+    columns = np.arange(max(int(np.ceil(x0 - 0.5)), 0), min(int(np.floor(x1 - 0.5)), width - 1) + 1)
+    rows = np.arange(max(int(np.ceil(y0 - 0.5)), 0), min(int(np.floor(y1 - 0.5)), height - 1) + 1)
+    stride = max(1, int(np.ceil(np.sqrt(len(columns) * len(rows) / MAX_RAYS_PER_STROKE))))
+    grid = np.meshgrid(columns[::stride], rows[::stride])
+    return np.stack([grid[0].ravel(), grid[1].ravel()], axis=-1)
+
+
+def stroke_from_pixels(
+    camera: Cameras, pixels: np.ndarray, class_name: str, frame: WorldFrame
+) -> Stroke:
+    """The stroke of `pixels` (column, row) of `camera` (in the run's world frame), stored in the dataset's frame."""
+    coords = torch.from_numpy(pixels[:, ::-1].astype(np.float32) + 0.5)  # nerfstudio's (row, column), pixel centres
+    bundle = camera.generate_rays(camera_indices=0, coords=coords)
+    camera_to_world = camera.camera_to_worlds.reshape(3, 4).double().numpy()
+    return Stroke(
+        class_name=class_name,
+        origins=frame.from_run(bundle.origins.double().numpy()),
+        directions=frame.rotate_from_run(bundle.directions.double().numpy()),
+        camera_to_world=frame.camera_from_run(camera_to_world),
+        pixel_area=float(bundle.pixel_area.mean()),
+    )
+
+
+class LabelPanel(nn.Module):
+    """Class picker, brush size, "Add class", "Undo last stroke" and a paint switch (no parameters: nothing enters
+    the checkpoint). `on_new_class` is told the class list after a class is added."""
+
+    def __init__(
+        self,
+        store: StrokeStore,
+        frame: WorldFrame,
+        class_names: Sequence[str],
+        num_slots: int,
+        palette: Float[Tensor, "slots 3"],
+        image_height: int,
+        training: bool,
+        on_new_class: Callable[[List[str]], None] = lambda names: None,
+    ) -> None:
+        super().__init__()
+        self.store, self.frame = store, frame
+        self.class_names = list(class_names)
+        self.num_slots, self.image_height, self.training_run = num_slots, image_height, training
+        self.palette = palette.detach().cpu()
+        self.on_new_class = on_new_class
+        self.control = ViewerControl()
+        self._pointer_taken = False
+        # the viewer installs elements in attribute-name order: the letters give the panel's order
+        self.a_paint = ViewerDropdown("Paint", OFF, [OFF, BRUSH, BOX], cb_hook=lambda element: self.set_mode(
+            element.value), hint="Click (brush) or drag (box) on the render to label it with the class below; off "
+                                 "to move the camera")
+        entries = self.entries()
+        self.b_class = ViewerDropdown("Class", entries[0], entries, cb_hook=lambda element: self._show_colour(),
+                                      hint="The class painted")
+        self.c_colour = ViewerRGB("Class colour", self.colour(0), disabled=True, hint="Its colour in the semantics")
+        self.d_brush = ViewerSlider("Brush radius (px)", 3, 1, 32, 1, hint="Radius of a click's disc, in pixels of "
+                                                                           "an image as tall as the training images")
+        self.e_new_class = ViewerText("New class", "", hint="Name of a class to add")
+        self.f_add_class = ViewerButton("Add class", cb_hook=lambda _: self.add_class(self.e_new_class.value))
+        self.g_undo = ViewerButton("Undo last stroke", cb_hook=lambda _: self.undo())
+        self.h_status = ViewerText("Strokes", self.summary(), disabled=True, hint="Saved in " + str(store.path))
+
+    def entries(self) -> List[str]:
+        return [f"{index}: {name}" for index, name in enumerate(self.class_names)] or [NO_CLASS]
+
+    def colour(self, class_id: int) -> tuple:
+        if not 0 <= class_id < len(self.palette):
+            return (0, 0, 0)
+        return tuple(int(round(float(value) * 255)) for value in self.palette[class_id])
+
+    @property
+    def class_id(self) -> Optional[int]:
+        """The class picked (None while there is none)."""
+        entries = self.entries()
+        return entries.index(self.b_class.value) if self.b_class.value in entries and self.class_names else None
+
+    def summary(self) -> str:
+        count, rays = len(self.store.strokes), self.store.num_rays()
+        where = "training mixes them into every batch" if self.training_run else "the next ns-train on this data " \
+                                                                                  "trains them"
+        return f"{count} strokes, {rays} rays: {where}"
+
+    def _say(self, text: str) -> None:
+        self.h_status.value = text
+
+    def _show_colour(self) -> None:
+        self.c_colour.value = self.colour(self.class_id if self.class_id is not None else -1)
+
+    def set_mode(self, mode: str) -> None:
+        """Route the viewer's pointer to painting (a click's disc, a drag's box) or give it back to navigation."""
+        server = getattr(self.control, "viser_server", None)
+        if server is None:  # no viewer (tests drive `paint_disc` / `paint_box` directly)
+            return
+        if self._pointer_taken:  # (viser warns when asked to remove a callback it does not have)
+            self.control.unregister_pointer_cb()
+            self._pointer_taken = False
+        if mode == BRUSH:
+            self.control.register_pointer_cb("click", self._on_click)
+        elif mode == BOX:
+            self.control.register_pointer_cb("rect-select", self._on_box)
+        self._pointer_taken = mode in (BRUSH, BOX)
+
+    def viewer_camera(self) -> Optional[Cameras]:
+        """The browser's camera, as tall as the training images (its width from the browser's aspect)."""
+        return self.control.get_camera(self.image_height, None)  # type: ignore[arg-type]
+
+    def _on_click(self, click: ViewerClick) -> None:
+        camera = self.viewer_camera()
+        if camera is not None:
+            self.paint_disc(camera, click.screen_pos, float(self.d_brush.value))
+
+    def _on_box(self, box: ViewerRectSelect) -> None:
+        camera = self.viewer_camera()
+        if camera is not None:
+            self.paint_box(camera, box.min_bounds, box.max_bounds)
+
+    def paint_disc(self, camera: Cameras, screen_position: Sequence[float], radius: float) -> Optional[Stroke]:
+        """Paint the disc around a point of `camera`'s image (fractions of its width and height)."""
+        width, height = int(camera.width), int(camera.height)
+        centre = (screen_position[0] * width, screen_position[1] * height)
+        return self.paint(camera, disc_pixels(centre, radius, width, height))
+
+    def paint_box(self, camera: Cameras, corner_min: Sequence[float], corner_max: Sequence[float]) -> Optional[Stroke]:
+        """Paint a box of `camera`'s image (corners as fractions of its width and height)."""
+        pixels = box_pixels(corner_min, corner_max, int(camera.width), int(camera.height))
+        return self.paint(camera, pixels) if len(pixels) else None
+
+    def paint(self, camera: Cameras, pixels: np.ndarray) -> Optional[Stroke]:
+        """Store one stroke: `pixels` (column, row) of `camera`, in the class picked."""
+        class_id = self.class_id
+        if class_id is None:
+            self._say("Add a class first (New class, then Add class).")
+            return None
+        stroke = stroke_from_pixels(camera, pixels, self.class_names[class_id], self.frame)
+        self.store.add(stroke)
+        self._say(self.summary())
+        return stroke
+
+    def undo(self) -> Optional[Stroke]:
+        stroke = self.store.undo()
+        self._say(self.summary() if stroke is not None else "No stroke to undo.")
+        return stroke
+
+    def add_class(self, name: str) -> bool:
+        """Add a class (recorded in the strokes file) and pick it; False, with the reason shown, when it cannot be."""
+        name = name.strip()
+        if not name:
+            self._say("Type the new class's name first.")
+            return False
+        if name not in self.class_names:
+            if len(self.class_names) >= self.num_slots:
+                self._say(f"No free class slot ({self.num_slots} in this model): '{name}' was not added. Declare "
+                          "it with ssnerf-label --semantic-classes, or train with more --pipeline.model.spare-classes.")
+                return False
+            self.store.add_class(name)
+            self.class_names.append(name)
+            self.b_class.set_options(self.entries())
+            self.on_new_class(list(self.class_names))
+        self.b_class.value = self.entries()[self.class_names.index(name)]
+        self._show_colour()
+        self._say(f"Class {self.class_names.index(name)}: {name}. " + self.summary())
+        return True
