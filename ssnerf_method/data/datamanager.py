@@ -12,12 +12,13 @@ from torch import Tensor
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.data.datamanagers.base_datamanager import VanillaDataManager, VanillaDataManagerConfig
 from nerfstudio.data.pixel_samplers import PixelSamplerConfig
+from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataparser import STROKES_METADATA_KEY, SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
 from ssnerf_method.data.pixel_sampler import LabelledPixelSamplerConfig
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
-from ssnerf_method.data.strokes import LabelledRays, StrokeStore, WorldFrame
+from ssnerf_method.data.strokes import LabelledRays, StrokeStore, WorldFrame, merged_classes
 from ssnerf_method.properties import REGISTRY, class_property
 
 
@@ -39,14 +40,17 @@ class SSNeRFDataManager(VanillaDataManager[SSNeRFDataset]):
 
     config: SSNeRFDataManagerConfig
 
-    def __init__(self, config: SSNeRFDataManagerConfig, *args, **kwargs) -> None:
-        super().__init__(config, *args, **kwargs)
+    def __init__(self, config: SSNeRFDataManagerConfig, device="cpu", test_mode="val", *args, **kwargs) -> None:
+        super().__init__(config, device, test_mode, *args, **kwargs)
         metadata = self.train_dataset.metadata
         self.strokes: Optional[StrokeStore] = metadata.get(STROKES_METADATA_KEY)
         """The dataset's strokes, when it trains classes (None otherwise)."""
         self.world_frame = WorldFrame.of(self.train_dataparser_outputs)
         self._stroke_rays: Optional[LabelledRays] = None
         self._stroke_version = -1
+        if self.strokes is not None and self.strokes.strokes and test_mode == "val":
+            CONSOLE.print(f"{len(self.strokes.strokes)} strokes ({self.strokes.num_rays()} labelled rays) from "
+                          f"{self.strokes.path}: {self.config.stroke_rays_per_batch} of them join every batch")
 
     def stroke_rays(self) -> Optional[LabelledRays]:
         """Every stroke's rays in this run's world frame (rebuilt when the store changed); None without strokes."""
@@ -54,7 +58,8 @@ class SSNeRFDataManager(VanillaDataManager[SSNeRFDataset]):
             return None
         if self.strokes.version != self._stroke_version:
             self._stroke_version = self.strokes.version
-            classes = self.train_dataset.metadata.get("semantic_classes", [])
+            # the run's classes, and those added in the viewer since it started (the panel numbers them alike)
+            classes, _ = merged_classes(self.train_dataset.metadata.get("semantic_classes", []), self.strokes)
             ids = {name: index for index, name in enumerate(classes)}
             self._stroke_rays = self.strokes.labelled_rays(self.world_frame, ids)
         return self._stroke_rays
