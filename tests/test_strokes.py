@@ -172,9 +172,10 @@ def test_stroke_rows_carry_their_class_and_nothing_else() -> None:
 
 @pytest.fixture(scope="module")
 def stroked_run(tmp_path_factory):
-    """The viewer test's generated 64x48 scene, whose frames have no semantic label file (its classes declared); from training view
-    0, the pixels of its two largest classes are painted in their class and those of the third as a class added in
-    the panel ("rug"); then the viewer test's small `ssnerf-lite` trains for 300 steps on one thread (~30 s)."""
+    """The viewer test's generated 64x48 scene, whose frames have no semantic label file (its classes declared);
+    from training view 0, the pixels of its two largest classes are painted in their class and those of the third as
+    a class added in the panel ("rug"); then the viewer test's small `ssnerf-lite` trains for 300 steps on one thread
+    (~30 s)."""
     torch.set_num_threads(1)
     torch.manual_seed(0)
     root = tmp_path_factory.mktemp("stroked")
