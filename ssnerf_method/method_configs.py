@@ -8,9 +8,8 @@ cores enough (see ../shared/notes/cpu-speed.md in the project's notes).
 from __future__ import annotations
 
 from copy import deepcopy
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Optional
+from typing import Optional
 
 import torch
 
@@ -21,28 +20,13 @@ from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from ssnerf_method.data.datamanager import SSNeRFDataManagerConfig
-from ssnerf_method.errors import UserError
+from ssnerf_method.engine.trainer import SSNeRFTrainerConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 from ssnerf_method.pipelines.ssnerf_pipeline import SSNeRFPipelineConfig
 
 SHORT_RUN_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
 """Training steps of a short run per method, the benchmark's and the studies' default (the methods' own
 `max_num_iterations` are for full-quality runs; the demo has its own, `scripts.demo.DEMO_STEPS`)."""
-
-@dataclass
-class SSNeRFTrainerConfig(TrainerConfig):
-    """nerfstudio's trainer config; a checkpoint folder that holds no checkpoint (`ns-eval`, `ns-render`, or
-    `ns-train --load-dir`) is one clear error instead of nerfstudio's `IndexError`."""
-
-    def __setattr__(self, name: str, value: Any) -> None:
-        if name == "load_dir" and value is not None:
-            folder = Path(value)
-            if folder.is_dir() and not any(folder.glob("step-*.ckpt")):
-                raise UserError(
-                    f"{folder}: holds no checkpoint (step-*.ckpt). Point at a run that saved one (training saves "
-                    "every steps_per_save steps and at its end), or train longer."
-                )
-        super().__setattr__(name, value)
 
 
 def default_machine() -> MachineConfig:

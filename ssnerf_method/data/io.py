@@ -20,6 +20,7 @@ from typing import Any, List, Optional, Tuple, Type
 import cv2
 import numpy as np
 
+from ssnerf_method.atomic import atomic_file
 from ssnerf_method.properties import LabelFileError
 
 
@@ -83,17 +84,10 @@ def encode_png(image: np.ndarray) -> bytes:
 
 
 def write_json_atomic(path: Path, data: Any) -> None:
-    """Write `data` as indented JSON to `path` through a temporary file in the same folder and a rename."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    handle, temporary = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(handle, "w") as stream:
-            json.dump(data, stream, indent=2)
-            stream.write("\n")
-        os.replace(temporary, path)
-    except BaseException:
-        Path(temporary).unlink(missing_ok=True)
-        raise
+    """Write `data` as indented JSON to `path`, whole or not at all (`atomic.atomic_file`)."""
+    with atomic_file(path) as stream:
+        json.dump(data, stream, indent=2)
+        stream.write("\n")
 
 
 def backup_once(path: Path) -> Path:

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import json
 import math
+import sys
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path, PurePosixPath
@@ -36,6 +37,8 @@ DEPTH_MODES = ("I;16", "I;16B", "I;16L", "I;16N", "I", "F")
 DISTORTION_LENGTHS = {"FISHEYE624": 12}
 """Length of `distortion_params` per camera model (nerfstudio's k1, k2, k3, k4, p1, p2 for the others)."""
 DEFAULT_DISTORTION_LENGTH = len(DISTORTION_KEYS)
+SAVED_RUN_COMMANDS = ("ns-eval", "ns-render", "ns-viewer", "ns-export", "ssnerf-export-dataset", "ssnerf-export-points")
+"""Commands that take the dataset's path from a trained run's config.yml (--load-config) rather than from --data."""
 MAX_LISTED = 20
 """Faults listed in an error (`ssnerf-check` lists them all)."""
 
@@ -75,6 +78,20 @@ def transforms_file(data: Path) -> Path:
     return data if data.suffix == ".json" else data / "transforms.json"
 
 
+def missing_data_fix() -> str:
+    """How to point the running command at a dataset that is not where its path says: `--data` for `ns-train`; for a
+    command that loads a trained run (`ns-eval`, `ns-viewer` have no --data), the `data:` of the run's config.yml."""
+    edit = ("set `data:` under `pipeline:` -> `datamanager:` in the run's config.yml (the --load-config file) to the "
+            "dataset's folder, e.g. `data: /new/place/scene`")
+    program = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
+    if program == "ns-train":
+        return "Point --data at a dataset folder holding transforms.json."
+    if program in SAVED_RUN_COMMANDS:
+        also = " (`ns-render dataset` also takes --data)" if program == "ns-render" else ""
+        return f"If the dataset has moved, {edit}{also}."
+    return f"Point --data at a dataset folder holding transforms.json; for a trained model, {edit}."
+
+
 def validate_dataset(
     data: Path, contents: bool = True, workers: int = 4, skip_labels: Collection[str] = ()
 ) -> Validation:
@@ -82,7 +99,8 @@ def validate_dataset(
     path = transforms_file(data)
     validation = Validation(path)
     if not data.exists():
-        validation.faults.append(f"{data}: does not exist. Point --data at a dataset folder holding transforms.json.")
+        where = "" if data.is_absolute() else f" (relative to {Path.cwd()})"
+        validation.faults.append(f"{data}: does not exist{where}. {missing_data_fix()}")
         return validation
     if not path.is_file():
         blender = (path.parent / "transforms_train.json").is_file()

@@ -26,6 +26,7 @@ import torch
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.atomic import save_torch_atomic, write_text_atomic
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.errors import UserError
@@ -159,8 +160,8 @@ class AugmentationStudy(StudyConfig):
         history = {"first_loss": float(np.mean(losses[:10])), "last_loss": float(np.mean(losses[-10:])),
                    "steps": len(losses)}
         weights.parent.mkdir(parents=True, exist_ok=True)
-        torch.save(network.networks.state_dict(), weights)
-        log.write_text(json.dumps(history, indent=2))
+        save_torch_atomic(network.networks.state_dict(), weights)
+        write_text_atomic(log, json.dumps(history, indent=2))  # last: its presence says the weights are whole
         return network, history
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:

@@ -21,6 +21,7 @@ from PIL import Image
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder, encode_png
@@ -181,7 +182,7 @@ class AutoLabelStudy(StudyConfig):
             for measure in measures:
                 scores[f"weak labels, {label}{suffix(measure)}"] = weak_scores[measure.metric]
                 scores[f"SS-NeRF, {label}{suffix(measure)}"] = render_scores[measure.metric]
-        cache.write_text(json.dumps(scores, indent=2))
+        write_text_atomic(cache, json.dumps(scores, indent=2))
         return scores
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:

@@ -32,6 +32,7 @@ from nerfstudio.scripts.train import main as train_main
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.atomic import save_torch_atomic, write_text_atomic
 from ssnerf_method.data.spacing import dataset_spacing, pose_spacing
 from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.evaluation.figures import property_grid, shown, shown_label
@@ -44,7 +45,7 @@ from ssnerf_method.evaluation.heuristic import (
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments import presets
-from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch, write_atomically
+from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch
 from ssnerf_method.experiments.report import BASELINE_ROWS, write_report
 from ssnerf_method.method_configs import SHORT_RUN_STEPS, short_run
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName, PropertySpec, resolve_properties
@@ -238,7 +239,7 @@ class SceneBenchmark:
                 metrics = json.loads(result.read_text())
             else:
                 metrics = self.train_and_evaluate(run)
-                write_atomically(result, json.dumps(metrics, indent=2))
+                write_text_atomic(result, json.dumps(metrics, indent=2))
         config, checkpoint = self.config_path(run.name), self.checkpoint(run.name)
         if metrics.get("train_seconds") is None and config.is_file() and checkpoint.is_file():
             # trained by an interrupted call or an older version: nerfstudio writes config.yml as training starts
@@ -317,7 +318,7 @@ class SceneBenchmark:
             else:
                 predict = self.hybrid(nerf, specs, num_classes).predictor(rgb_renderer(nerf))
             metrics = score_predictor(predict, self.test_dataset(nerf), specs, num_classes)
-            write_atomically(result, json.dumps(metrics, indent=2))
+            write_text_atomic(result, json.dumps(metrics, indent=2))
         return metrics
 
     def run(self) -> Dict[str, Dict[str, Any]]:
@@ -363,7 +364,7 @@ class SceneBenchmark:
             hybrid.networks.load_state_dict(torch.load(weights))
         else:
             history = hybrid.fit()
-            torch.save(hybrid.networks.state_dict(), weights)
+            save_torch_atomic(hybrid.networks.state_dict(), weights)
             for name, losses in history.items():
                 first, last = np.mean(losses[:10]), np.mean(losses[-10:])
                 CONSOLE.print(f"hybrid {name} annotator: training loss {first:.4f} -> {last:.4f}")

@@ -25,6 +25,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.errors import UserError
 
 RUNNING_SUFFIX = ".running"
@@ -84,14 +85,6 @@ def exclusive(lock: Path) -> Iterator[None]:
             yield
         finally:
             fcntl.flock(handle, fcntl.LOCK_UN)
-
-
-def write_atomically(path: Path, text: str) -> None:
-    """Write `text` to `path` through a temporary file and a rename: a killed worker never leaves half a result that
-    a later run would take for a finished one."""
-    temporary = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    temporary.write_text(text)
-    temporary.replace(path)
 
 
 def ordered(jobs: Sequence[Job]) -> List[Job]:
@@ -157,8 +150,8 @@ def run_job(job: Job, *_needed: Any) -> None:
     if job.running_file.is_file():  # a worker died running it: this is a retry
         with contextlib.suppress(ValueError, KeyError):
             attempt = json.loads(job.running_file.read_text())["attempt"] + 1
-    write_atomically(job.running_file, json.dumps({"host": socket.gethostname(), "pid": os.getpid(),
-                                                   "attempt": attempt}))
+    write_text_atomic(job.running_file, json.dumps({"host": socket.gethostname(), "pid": os.getpid(),
+                                                    "attempt": attempt}))
     sys.stdout.flush()
     sys.stderr.flush()
     saved = os.dup(1), os.dup(2)
@@ -254,6 +247,6 @@ class RayLauncher:
         words = str(error).strip().splitlines()
         record = {"error": f"{type(error).__name__}: {words[-1] if words else ''}"[:300], "log": str(job.log)}
         job.log.parent.mkdir(parents=True, exist_ok=True)
-        write_atomically(job.failed_file, json.dumps(record, indent=2))
+        write_text_atomic(job.failed_file, json.dumps(record, indent=2))
         job.running_file.unlink(missing_ok=True)
         return record

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Optional, Sequence, Tuple
 
+from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.data.spacing import ANGLE_WEIGHT
 from ssnerf_method.metrics import METRICS
 from ssnerf_method.properties import REGISTRY
@@ -183,9 +184,9 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
         failures(results),
     ] if part)
     path = output / "report.md"
-    path.write_text(report + "\n")
+    write_text_atomic(path, report + "\n")
     tables = {"method": method, "steps": steps, "lr_drop": lr_drop, "spacing": spacing, "table1": first,
               "table2_left": second,
               "beats": verdicts, "results": results}
-    (output / "tables.json").write_text(json.dumps(tables, indent=2))
+    write_text_atomic(output / "tables.json", json.dumps(tables, indent=2))
     return path

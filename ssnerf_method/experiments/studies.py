@@ -25,6 +25,7 @@ from typing import Any, Dict, List, Optional, Tuple
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.experiments.benchmark import (
     ALL,
     DEFAULT_STEPS,
@@ -296,8 +297,8 @@ def write_study_report(study: StudyConfig, results: Results, runs: Dict[str, Any
         f"per-run training time and seed in `study_{study.name}.json`.",
     ] if part)
     path = config.output / f"study_{study.name}.md"
-    path.write_text(report + "\n")
-    (config.output / f"study_{study.name}.json").write_text(
-        json.dumps({**details, "tables": tables, "results": results}, indent=2))
+    write_text_atomic(path, report + "\n")
+    write_text_atomic(config.output / f"study_{study.name}.json",
+                      json.dumps({**details, "tables": tables, "results": results}, indent=2))
     CONSOLE.print(report)
     return path

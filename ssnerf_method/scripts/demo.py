@@ -26,6 +26,7 @@ from nerfstudio.scripts.train import main as train_main
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.evaluation.figures import display_image, property_grid
 from ssnerf_method.evaluation.heuristic import nearest_view_copy
 from ssnerf_method.evaluation.scoring import score_predictor
@@ -157,7 +158,7 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
         "config": str(config_path),
         "results": results,
     }
-    (config.output_dir / "metrics.json").write_text(json.dumps(summary, indent=2))
+    write_text_atomic(config.output_dir / "metrics.json", json.dumps(summary, indent=2))
     print_table(results)
     names = " ".join(spec.name for spec in pipeline.model.specs)  # type: ignore[attr-defined]
     CONSOLE.print(

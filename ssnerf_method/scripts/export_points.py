@@ -28,6 +28,7 @@ from nerfstudio.pipelines.base_pipeline import Pipeline
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE, get_progress
 
+from ssnerf_method.atomic import atomic_file, write_text_atomic
 from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 
@@ -129,12 +130,14 @@ def to_original_frame(pipeline: Pipeline, arrays: Dict[str, np.ndarray]) -> Dict
 
 
 def write_ply(path: Path, arrays: Dict[str, np.ndarray], comments: List[str]) -> None:
-    """A binary PLY with one `vertex` element holding every array as a property (positions first)."""
+    """A binary PLY with one `vertex` element holding every array as a property (positions first), whole or not at
+    all (`atomic.atomic_file`)."""
     order = ["x", "y", "z", *[name for name in arrays if name not in "xyz"]]
     vertices = np.empty(len(arrays["x"]), dtype=[(name, arrays[name].dtype.str) for name in order])
     for name in order:
         vertices[name] = arrays[name]
-    PlyData([PlyElement.describe(vertices, "vertex")], comments=comments).write(str(path))
+    with atomic_file(path, "wb") as stream:
+        PlyData([PlyElement.describe(vertices, "vertex")], comments=comments).write(stream)
 
 
 def main(config: ExportPointsConfig) -> Dict[str, np.ndarray]:
@@ -151,7 +154,8 @@ def main(config: ExportPointsConfig) -> Dict[str, np.ndarray]:
     comments += [f"class {index} {name}" for index, name in enumerate(names)]
     config.output_dir.mkdir(parents=True, exist_ok=True)
     write_ply(config.output_dir / PLY_NAME, arrays, comments)
-    (config.output_dir / "classes.json").write_text(json.dumps({"names": names, "colors": colours}, indent=2) + "\n")
+    classes = json.dumps({"names": names, "colors": colours}, indent=2) + "\n"
+    write_text_atomic(config.output_dir / "classes.json", classes)
     class_field = None if model.class_spec is None else model.class_spec.name
     if config.split_by_class and class_field is not None:
         for index in np.unique(arrays[class_field]):

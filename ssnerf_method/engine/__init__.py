@@ -1,0 +1,1 @@
+"""Training and checkpoint loading: nerfstudio's trainer with checkpoints that survive a kill."""
