@@ -28,6 +28,9 @@ SHORT_RUN_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
 """Training steps of a short run per method, the benchmark's and the studies' default (the methods' own
 `max_num_iterations` are for full-quality runs; the demo has its own, `scripts.demo.DEMO_STEPS`)."""
 
+SPARE_CLASSES = 4
+"""Semantic class slots the viewer's Label panel can add classes to while a run trains (`spare_classes`)."""
+
 
 def default_machine() -> MachineConfig:
     """Train on CUDA when there is a GPU, else on the CPU (nerfstudio's default would fail without CUDA)."""
@@ -44,7 +47,7 @@ ssnerf_config = SSNeRFTrainerConfig(
     machine=default_machine(),
     pipeline=SSNeRFPipelineConfig(
         datamanager=SSNeRFDataManagerConfig(train_num_rays_per_batch=1024, eval_num_rays_per_batch=1024),
-        model=SSNeRFModelConfig(eval_num_rays_per_chunk=4096),
+        model=SSNeRFModelConfig(eval_num_rays_per_chunk=4096, spare_classes=SPARE_CLASSES),
     ),
     optimizers={
         "fields": {
@@ -92,6 +95,7 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             balance_ratio=0.1,
             decoder_sharing="property",
             grid_feature_dim=32,
+            spare_classes=SPARE_CLASSES,
         ),
     ),
     optimizers={
