@@ -4,6 +4,9 @@ labels given their share of each batch, and a stroke teaching the surface it cov
 from __future__ import annotations
 
 import json
+import os
+import subprocess
+import sys
 from pathlib import Path
 from typing import Dict
 
@@ -252,3 +255,19 @@ def test_a_model_trained_with_strokes_loads_like_any_other(stroked_run) -> None:
     assert not loaded.model.semantic_labelling.training_run, "ns-viewer's panel saves strokes for the next run"
     camera_outputs = loaded.model.get_outputs_for_camera(loaded.datamanager.eval_dataset.cameras[0:1])
     assert camera_outputs["semantics"].shape[-1] == 3
+
+
+def test_ssnerf_check_and_ns_train_stop_at_a_strokes_file_that_does_not_parse(tiny_dataset: Path) -> None:
+    path = tiny_dataset / STROKES_FILE
+    path.parent.mkdir(parents=True)
+    path.write_text('{"format": "ssnerf-strokes", "strokes": [{"class": "wall"}')
+    before = {file: file.read_bytes() for file in tiny_dataset.rglob("*") if file.is_file()}
+    for command in (["ssnerf-check", str(tiny_dataset)],
+                    ["ns-train", "ssnerf-lite", "--data", str(tiny_dataset), "--max-num-iterations", "1",
+                     "--vis", "tensorboard", "--output-dir", str(tiny_dataset.parent / "outputs")]):
+        result = subprocess.run([str(Path(sys.executable).parent / command[0]), *command[1:]], capture_output=True,
+                                text=True, timeout=300, env={**os.environ, "OMP_NUM_THREADS": "1"})
+        assert result.returncode == 1, result.stderr[-2000:]
+        faults = [line for line in result.stderr.splitlines() if str(path) in line]
+        assert len(faults) == 1 and "Traceback" not in result.stderr, result.stderr[-2000:]
+    assert before == {file: file.read_bytes() for file in tiny_dataset.rglob("*") if file.is_file()}

@@ -29,6 +29,7 @@ from PIL import Image, UnidentifiedImageError
 from nerfstudio.cameras.cameras import CAMERA_MODEL_TO_TYPE
 
 from ssnerf_method.data.io import DatasetInputError
+from ssnerf_method.data.strokes import STROKES_FILE, StrokeStore
 from ssnerf_method.data.transforms import DISTORTION_KEYS, INTRINSIC_KEYS
 from ssnerf_method.properties import REGISTRY, LabelFileError
 
@@ -123,7 +124,13 @@ def validate_dataset(
             "(ssnerf-label keeps transforms.json.orig) or regenerate it."
         )
         return validation
-    return validate_transforms(path.parent, path, meta, contents, workers, skip_labels)
+    validation = validate_transforms(path.parent, path, meta, contents, workers, skip_labels)
+    if (path.parent / STROKES_FILE).exists():  # strokes painted in the viewer are read by every run
+        try:
+            StrokeStore.load(path.parent / STROKES_FILE)
+        except DatasetInputError as err:
+            validation.faults.append(str(err))
+    return validation
 
 
 def validate_transforms(
