@@ -16,7 +16,7 @@ from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.utils.eval_utils import eval_setup
 
 from ssnerf_method.experiments.benchmark import shrink_for_quick
-from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
+from ssnerf_method.method_configs import SPARE_CLASSES, ssnerf_config, ssnerf_lite_config
 from ssnerf_method.metrics import METRICS
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 
@@ -24,10 +24,11 @@ from conftest import CLASSES, HEIGHT, WIDTH, write_tiny_dataset
 
 EXPECTED_OUTPUTS = {
     **{spec.name: 3 for spec in REGISTRY.values()},
-    **{spec.prediction_key: spec.kind.head_channels(len(CLASSES)) for spec in REGISTRY.values()
+    **{spec.prediction_key: spec.kind.head_channels(len(CLASSES) + SPARE_CLASSES) for spec in REGISTRY.values()
        if spec.kind.prediction_suffix},
 }
-"""`render_camera`'s outputs (display images, and the predictions stored apart from them) and their channels."""
+"""`render_camera`'s outputs (display images, and the predictions stored apart from them) and their channels (class
+logits: the dataset's classes and the spare slots the viewer's Label panel can name)."""
 DISPLAY_OUTPUTS = {*REGISTRY, "depth", "accumulation"}
 """What the viewer lists and `ns-render` can write: nothing internal."""
 
