@@ -1,8 +1,10 @@
-"""A quiet console: our commands' `--help` and a short `ns-train` show none of nerfstudio 1.1.5's known torch
-deprecation warnings (`compat.KNOWN_WARNINGS`), and the warnings are silenced only where they come from."""
+"""A quiet console: our commands' `--help`, a short `ns-train`, and `ns-eval` and `ns-render` on a trained model show
+none of nerfstudio 1.1.5's known third-party deprecation warnings (`compat.KNOWN_WARNINGS`, installed at interpreter
+start by the package's `.pth` hook), and the warnings are silenced only where they come from."""
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -17,6 +19,8 @@ from conftest import write_tiny_dataset
 
 ROOT = Path(__file__).parents[1]
 BIN = Path(sys.executable).parent
+DEPRECATION = re.compile(r"\b(FutureWarning|DeprecationWarning)\b")
+"""A deprecation warning of any library, as Python prints it."""
 
 
 def known_warning_in(text: str) -> list:
@@ -46,6 +50,7 @@ def test_short_ns_train_is_quiet(tmp_path: Path) -> None:
     )
     assert result.returncode == 0, result.stderr[-3000:]
     assert not re.search(KNOWN_WARNINGS[2][1], result.stderr + result.stdout)
+    assert not DEPRECATION.search(result.stderr + result.stdout), result.stderr  # e.g. the trainer's GradScaler
 
 
 def test_only_those_warnings_are_silenced() -> None:
@@ -64,3 +69,34 @@ def test_only_those_warnings_are_silenced() -> None:
                                "cameras.py", 2, module="nerfstudio.cameras.cameras")
     assert [str(warning.message) for warning in caught] == [
         "Using a non-tuple sequence for multidimensional indexing is deprecated", "something else"]
+
+
+def test_the_warnings_hook_is_installed_and_light() -> None:
+    """`ssnerf_method_warnings.pth` (installed by the build backend, `build_hooks/`) runs at every interpreter start:
+    the filters are in place before anything is imported, and it imports neither torch nor the package."""
+    probe = ("import sys, warnings; "
+             "print(sum(f[0] == 'ignore' and f[1] is not None and f[1].pattern.startswith('`torch') "
+             "for f in warnings.filters), 'torch' in sys.modules, 'ssnerf_method' in sys.modules)")
+    result = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=60, check=True)
+    known_torch = sum(message.startswith("`torch") for _, message, _ in KNOWN_WARNINGS)
+    assert result.stdout.split() == [str(known_torch), "False", "False"], result.stdout + result.stderr
+
+
+def test_ns_eval_and_ns_render_print_no_deprecation_warning(trained_scene, tmp_path: Path) -> None:
+    """nerfstudio's commands import nerfstudio (and with it torch's and torchmetrics' deprecated names) before they
+    find the plugin: only the `.pth` hook silences those."""
+    scene, config = trained_scene
+    commands = {
+        "ns-eval": ["--load-config", str(config), "--output-path", str(tmp_path / "eval.json")],
+        "ns-render": ["camera-path", "--load-config", str(config), "--camera-path-filename",
+                      str(scene / "camera_paths" / "fly_through.json"), "--output-path", str(tmp_path / "rgb.mp4"),
+                      "--rendered-output-names", "rgb", "--output-format", "images"],
+    }
+    running = {name: subprocess.Popen([BIN / name, *args], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                                      env={**os.environ, "OMP_NUM_THREADS": "1"})
+               for name, args in commands.items()}
+    for name, process in running.items():
+        output, _ = process.communicate(timeout=600)
+        assert process.returncode == 0, (name, output[-3000:])
+        assert not DEPRECATION.search(output), (name, output)
+    assert (tmp_path / "eval.json").is_file() and any((tmp_path / "rgb").glob("*.jpg"))
