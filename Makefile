@@ -1,10 +1,11 @@
-# The two commands of the README: `make demo` (environment + demo) and `make test` (environment + test suite).
+# The two commands of the README: `make demo` (environment + demo) and `make test` (environment, linter, documentation
+# and test suite). `make docs` builds the documentation alone.
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 APT_PACKAGES := ffmpeg chromium
 
-.PHONY: demo test env system
+.PHONY: demo test docs env system
 
 env: $(VENV)/.installed
 
@@ -27,11 +28,21 @@ system:
 demo: env
 	$(BIN)/ssnerf-demo --output-dir demo_output --overwrite
 
-# The test extras (pytest, ruff) and the cluster extra (Ray), so that the tests cover `--launcher ray`.
+# The test extras (pytest, ruff), the cluster extra (Ray), so that the tests cover `--launcher ray`, and the docs extra
+# (Sphinx), which the tests build too.
 $(VENV)/.test-extras: $(VENV)/.installed
-	$(BIN)/pip install -e '.[cluster,test]'
+	$(BIN)/pip install -e '.[cluster,test,docs]'
+	touch $@ $(VENV)/.docs-extras
+
+$(VENV)/.docs-extras: $(VENV)/.installed
+	$(BIN)/pip install -e '.[docs]'
 	touch $@
+
+# The documentation (docs/, MyST Markdown) as HTML in docs/_build/html; any warning fails it.
+docs: $(VENV)/.docs-extras
+	$(BIN)/sphinx-build -W --keep-going -q -b html docs docs/_build/html
 
 test: env system $(VENV)/.test-extras
 	$(BIN)/ruff check ssnerf_method tests scripts
+	$(MAKE) docs
 	$(BIN)/python -m pytest -q

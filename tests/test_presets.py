@@ -1,5 +1,5 @@
 """Run presets (`configs/`, `--preset`): every file parses into its command's options in the --quick form, typed flags
-win over the file, the README's commands name every preset, and a bad preset ends in one line naming the file."""
+win over the file, the documentation's commands name every preset, and a bad preset ends in one line naming the file."""
 
 from __future__ import annotations
 
@@ -54,7 +54,8 @@ def test_every_preset_parses_in_quick_form_and_the_readme_runs_it(path: Path, tm
     for key, value in data.items():
         if key != "output":
             assert same(getattr(config, key), value), key
-    assert f"--preset configs/{path.name}" in (REPO / "README.md").read_text(), "the README runs every preset"
+    pages = "".join(page.read_text() for page in [REPO / "README.md", *(REPO / "docs").glob("*.md")])
+    assert f"--preset configs/{path.name}" in pages, "the documentation runs every preset"
 
 
 def test_typed_flags_override_the_preset_and_the_study_can_be_typed(tmp_path: Path) -> None:

@@ -269,8 +269,8 @@ def test_ns_eval_on_an_empty_checkpoint_folder(trained_scene, tmp_path: Path) ->
         ComputePSNR(load_config=copied, output_path=tmp_path / "eval.json").main()
 
 
-def test_readme_lists_exactly_these_faults() -> None:
-    readme = (Path(__file__).parents[1] / "README.md").read_text()
+def test_the_docs_list_exactly_these_faults() -> None:
+    readme = (Path(__file__).parents[1] / "docs" / "dataset-format.md").read_text()
     block = readme.split("<!-- bad-input list: tests/test_validation.py FAULTS -->")[1].split("<!-- end of")[0]
     listed = [line[2:].split(":")[0] for line in block.strip().splitlines()]
     assert listed == list(FAULTS)
