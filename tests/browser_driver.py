@@ -164,6 +164,18 @@ class Page:
         self.call("Input.dispatchMouseEvent", type="mousePressed", x=x, y=y, button="left", buttons=1, clickCount=1)
         self.call("Input.dispatchMouseEvent", type="mouseReleased", x=x, y=y, button="left", buttons=0, clickCount=1)
 
+    def drag(self, start: Tuple[float, float], end: Tuple[float, float], steps: int = 8) -> None:
+        """A left-button drag from `start` to `end` (viewport coordinates, CSS pixels), through `steps` moves."""
+        self.call("Input.dispatchMouseEvent", type="mouseMoved", x=start[0], y=start[1], button="none", buttons=0)
+        self.call("Input.dispatchMouseEvent", type="mousePressed", x=start[0], y=start[1], button="left", buttons=1,
+                  clickCount=1)
+        for step in range(1, steps + 1):
+            x = start[0] + (end[0] - start[0]) * step / steps
+            y = start[1] + (end[1] - start[1]) * step / steps
+            self.call("Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y, button="left", buttons=1)
+        self.call("Input.dispatchMouseEvent", type="mouseReleased", x=end[0], y=end[1], button="left", buttons=0,
+                  clickCount=1)
+
     def click_element(self, element_js: str, what: str) -> None:
         """Scroll the element that `element_js` evaluates to into view and click its centre with the mouse.
 

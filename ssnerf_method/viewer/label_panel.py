@@ -133,7 +133,7 @@ class LabelPanel(nn.Module):
         count, rays = len(self.store.strokes), self.store.num_rays()
         where = "training mixes them into every batch" if self.training_run else "the next ns-train on this data " \
                                                                                   "trains them"
-        return f"{count} strokes, {rays} rays: {where}"
+        return f"{count} stroke{'' if count == 1 else 's'}, {rays} rays: {where}"
 
     def _say(self, text: str) -> None:
         self.h_status.value = text
