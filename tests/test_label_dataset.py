@@ -33,6 +33,7 @@ from conftest import look_at
 from test_training import lite_config, train
 
 DERIVED = ("normals", "shading", "edges", "keypoints")
+NO_DEPTH = "no depth_file_path (--depth-from a model trained on the data renders it)"
 
 
 @pytest.fixture(scope="module")
@@ -78,7 +79,7 @@ def test_with_depth_derives_every_label_and_keeps_the_original(scene: Path, tmp_
     original = (data / "transforms.json").read_bytes()
     report = run(data)
     assert all(report.outcomes[name] == {LABELLED: 5} for name in DERIVED)
-    assert report.outcomes["semantics"] == {"skipped: not given (semantics are never derived; pass --semantics-dir)": 5}
+    assert report.outcomes["semantics"] == {"skipped: not given (semantics are never derived; pass --annotations)": 5}
     assert (data / "transforms.json.orig").read_bytes() == original
     assert not list(data.glob(".ssnerf-staging-*"))
 
@@ -108,7 +109,7 @@ def test_with_depth_derives_every_label_and_keeps_the_original(scene: Path, tmp_
 
     # The labelled dataset loads: every derived property is available and valid on most pixels.
     outputs = SSNeRFDataParserConfig(data=data).setup().get_dataparser_outputs("train")
-    assert set(outputs.metadata["available_properties"]) == set(DERIVED)
+    assert set(outputs.metadata["available_properties"]) == {*DERIVED, "semantics"}  # declared classes train (strokes)
     item = SSNeRFDataset(outputs)[0]
     for name in DERIVED:
         assert REGISTRY[name].kind.valid(item[name]).float().mean() > 0.8
@@ -172,7 +173,7 @@ def test_given_normals_are_kept_and_shaded(scene: Path, tmp_path: Path) -> None:
     meta["frames"][0]["normals_file_path"] = "normals/frame_00000.png"
     (data / "transforms.json").write_text(json.dumps(meta))
     report = run(data)
-    assert report.outcomes["normals"] == {KEPT: 1, "skipped: no depth_file_path": 4}
+    assert report.outcomes["normals"] == {KEPT: 1, f"skipped: {NO_DEPTH}": 4}
     assert report.outcomes["shading"] == {LABELLED: 1, "skipped: no normals (given or derived from depth)": 4}
     frame = json.loads((data / "transforms.json").read_text())["frames"][0]
     assert frame["normals_file_path"] == "normals/frame_00000.png"
@@ -235,7 +236,7 @@ def test_capture_without_depth_labels_edges_and_keypoints_then_trains(tmp_path: 
     data = write_capture(tmp_path / "capture")
     report = main(LabelDatasetConfig(data=data))
     assert report.outcomes["edges"] == {LABELLED: 6} and report.outcomes["keypoints"] == {LABELLED: 6}
-    assert report.outcomes["normals"] == {"skipped: no depth_file_path": 6}
+    assert report.outcomes["normals"] == {f"skipped: {NO_DEPTH}": 6}
     assert report.outcomes["shading"] == {"skipped: no normals (given or derived from depth)": 6}
     meta = json.loads((data / "transforms.json").read_text())
     assert meta["ply_file_path"] == "sparse_pc.ply" and meta["applied_transform"][1] == [0, 0, 1, 0]
@@ -301,7 +302,7 @@ def test_output_in_another_folder_points_back_at_the_data(scene: Path, tmp_path:
     assert meta["frames"][0]["edges_file_path"].startswith(LABEL_FOLDER)
     assert meta["test_filenames"][0].startswith("../data/images/")
     outputs = SSNeRFDataParserConfig(data=tmp_path / "labelled").setup().get_dataparser_outputs("train")
-    assert set(outputs.metadata["available_properties"]) == {"normals", "shading", "edges"}
+    assert set(outputs.metadata["available_properties"]) == {"normals", "shading", "edges", "semantics"}
     assert report.transforms_path == tmp_path / "labelled" / "transforms.json"
 
 

@@ -17,10 +17,10 @@ LAYERS: List[Set[str]] = [
     {"compat", "errors", "labels"},  # label makers: numpy and OpenCV on images, nothing of ours above them
     {"properties"},  # the registry
     {"data", "metrics"},
-    {"labelling", "scene", "fields", "rendering", "viewer"},
+    {"scene", "fields", "rendering", "viewer"},
     {"model"},
     {"pipelines"},
-    {"evaluation", "export"},
+    {"evaluation", "export", "labelling"},  # ssnerf-label's engine: --depth-from renders with a trained model
     {"method_configs"},
     {"experiments"},
     {"scripts"},

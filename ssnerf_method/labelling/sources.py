@@ -1,5 +1,5 @@
-"""What `ssnerf-label` reads per frame for the label makers: depth maps, and class ids from a folder of annotations
-(as ids, or as colours listed in transforms.json)."""
+"""What `ssnerf-label` reads for the label makers: depth maps, class ids from a folder of masks (as ids, or as colours
+listed in transforms.json), and the annotation files of `--annotations` (COCO, labelme, or such a folder)."""
 
 from __future__ import annotations
 
@@ -9,6 +9,9 @@ from typing import Dict, Optional
 import numpy as np
 
 from ssnerf_method.data.io import DatasetInputError, read_image
+from ssnerf_method.data.transforms import Transforms
+from ssnerf_method.labelling import coco, labelme
+from ssnerf_method.labelling.annotations import Annotations, FrameIndex, read_json
 from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
 from ssnerf_method.labels.makers import Skip
 
@@ -90,3 +93,41 @@ def read_class_ids(path: Path, width: int, height: int, colors: Optional[list]) 
             "Remap the classes to fewer ids."
         )
     return labels.astype(np.uint8)
+
+
+def load_annotations(path: Path, transforms: Transforms) -> Optional[Annotations]:
+    """Read and check the annotation source at `path` (a COCO or labelme .json file, a folder of labelme files, or a
+    folder of mask PNGs). A folder of masks returns None: it is read per frame, as `--semantics-dir`."""
+    index = FrameIndex(transforms)
+    if path.is_dir():
+        json_files = sorted(path.glob("*.json"))
+        if json_files:
+            return _with_shapes(labelme.read_labelme_files(path, json_files, index))
+        if any(path.glob("*.png")) or any(path.glob("*/*.png")):
+            return None
+        raise DatasetInputError(
+            f"{path}: holds no labelme .json files and no mask .png files. Point --annotations at a COCO .json, a "
+            "labelme .json or a folder of them, or a folder of class-id PNGs named like the images."
+        )
+    if not path.is_file():
+        raise DatasetInputError(f"{path}: does not exist. Check the --annotations path.")
+    if path.suffix.lower() != ".json":
+        raise DatasetInputError(
+            f"{path}: not an annotation file this tool reads. Give a COCO .json (instance segmentation export), a "
+            "labelme .json or a folder of them, or a folder of class-id PNGs; convert other formats to COCO first."
+        )
+    content = read_json(path, "annotations")
+    if isinstance(content, dict) and "images" in content and "annotations" in content:
+        return _with_shapes(coco.read_coco(path, content, index))
+    if isinstance(content, dict) and "shapes" in content:
+        return _with_shapes(labelme.read_labelme_files(path.parent, [path], index, {path: content}, source=path))
+    raise DatasetInputError(
+        f"{path}: neither a COCO file (\"images\", \"annotations\", \"categories\") nor a labelme file (\"shapes\"). "
+        "Export the annotations as COCO instance segmentation or labelme JSON."
+    )
+
+
+def _with_shapes(annotations: Annotations) -> Annotations:
+    """Frames whose entries hold no shape that covers pixels are not annotated (they get no semantics file)."""
+    annotations.frames = {path: frame for path, frame in annotations.frames.items() if frame.shapes}
+    return annotations

@@ -101,11 +101,11 @@ class SemanticsCopy(LabelMaker):
     """Class ids are never derived: they are copied from the frame's source (annotations, a ray caster)."""
 
     reads = ("semantics",)
-    help = "Semantic labels, copied from --semantics-dir (never derived)."
+    help = "Semantic labels, from --annotations or --semantics-dir (never derived)."
 
     def make(self, frame: FrameSources, options: LabelOptions) -> np.ndarray:
         if frame.semantics is None:
-            raise Skip("not given (semantics are never derived; pass --semantics-dir)")
+            raise Skip("not given (semantics are never derived; pass --annotations)")
         return frame.semantics().astype(np.uint8)
 
     def describe(self, options: LabelOptions) -> str:
@@ -118,7 +118,7 @@ class NormalsFromDepth(LabelMaker):
 
     reads = ("depth",)
     provides = "normals"
-    help = "Surface normals from each frame's depth map (frames without `depth_file_path` are skipped)."
+    help = "Surface normals from each frame's depth map (frames without one: rendered by --depth-from, or skipped)."
 
     def make(self, frame: FrameSources, options: LabelOptions) -> np.ndarray:
         if options.normals_source == "exact":
@@ -126,7 +126,7 @@ class NormalsFromDepth(LabelMaker):
                 raise Skip("no exact normals given")
             return to_uint8(encode_normals(frame.normals))
         if frame.depth is None:
-            raise Skip("no depth_file_path")
+            raise Skip("no depth_file_path (--depth-from a model trained on the data renders it)")
         if not frame.perspective:
             raise Skip("camera model is not a perspective (pinhole) camera")
         depth = frame.depth()

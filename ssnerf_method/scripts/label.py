@@ -5,13 +5,21 @@ from __future__ import annotations
 import time
 
 import tyro
+from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
-from nerfstudio.utils.rich_utils import CONSOLE, get_progress
+from nerfstudio.utils.rich_utils import CONSOLE, ItersPerSecColumn
 
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.errors import UserError, exit_with
-from ssnerf_method.labelling.label_dataset import KEPT, LABELLED, LabelDatasetConfig, LabelReport, label_dataset
+from ssnerf_method.labelling.label_dataset import (
+    KEPT,
+    LABELLED,
+    LabelDatasetConfig,
+    LabelReport,
+    frames_needing_depth,
+    label_dataset,
+)
 
 
 def report_table(report: LabelReport, num_frames: int) -> Table:
@@ -27,14 +35,24 @@ def report_table(report: LabelReport, num_frames: int) -> Table:
 
 
 def main(config: LabelDatasetConfig) -> LabelReport:
-    """Label the dataset with a progress bar, then print the per-property report."""
+    """Label the dataset with a progress bar (and one for the depth --depth-from renders), then print the
+    per-property report."""
     transforms = load_transforms(config.data)
     start = time.perf_counter()
-    progress = get_progress("Labelling frames", suffix="frames/s")
+    progress = Progress(TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(show_speed=True),
+                        ItersPerSecColumn(suffix="frames/s"), TimeRemainingColumn(elapsed_when_finished=True,
+                                                                                  compact=True))
     with progress:
-        task = progress.add_task("label", total=len(transforms.frames))
-        report = label_dataset(config, transforms, on_frame=lambda: progress.advance(task))
+        task = progress.add_task("Labelling frames", total=len(transforms.frames))
+        depth_task = None
+        num_depth = len(frames_needing_depth(config, transforms))
+        if num_depth:
+            depth_task = progress.add_task(f"Rendering depth ({config.depth_from_scale:g}x)", total=num_depth)
+        report = label_dataset(config, transforms, on_frame=lambda: progress.advance(task),
+                               on_depth=None if depth_task is None else lambda: progress.advance(depth_task))
     CONSOLE.print(report_table(report, len(transforms.frames)))
+    for note in report.notes:
+        CONSOLE.print(note, soft_wrap=True, highlight=False)
     if report.backup_path is not None:
         CONSOLE.print(f"Original kept as {report.backup_path}")
     CONSOLE.print(
