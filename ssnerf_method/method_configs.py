@@ -86,12 +86,12 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             # The paper's L1 drives 1-pixel edge maps to an empty map within a CPU budget (measured: blank after
             # 3000 steps); MSE renders them. On the keypoint response map MSE weights the peaks' large errors more
             # than L1's median does: keypoint F1 0.590 / 0.521 against L1's 0.541 / 0.478 on the two walkthrough
-            # scenes, 1000 steps (README, "What to expect").
+            # scenes, 1000 steps (CHANGELOG.md, 2026-12-03).
             losses={"edges": "mse", "keypoints": "mse"},
             # Properties' gradients into F_enc are 2-45x RGB's at the start; left so, Adam lets them set F_enc's
             # updates and RGB loses ~4-8 dB at 1000 steps. Each is capped at a tenth of RGB's, and each property has
             # its own decoder MLP on a 32-number feature (nerfacto's 15 is sized for RGB alone): measured best on the
-            # default scenes (README, "Multi-task balancing").
+            # default scenes (docs/method.md, "Multi-task balancing").
             balance_ratio=0.1,
             decoder_sharing="property",
             grid_feature_dim=32,

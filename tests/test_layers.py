@@ -14,13 +14,14 @@ import ssnerf_method
 ROOT = Path(ssnerf_method.__file__).parent
 
 LAYERS: List[Set[str]] = [
-    {"compat", "errors", "labels"},  # label makers: numpy and OpenCV on images, nothing of ours above them
+    {"compat", "errors", "atomic", "labels"},  # label makers: numpy and OpenCV on images, nothing of ours above them
     {"properties"},  # the registry
     {"data", "metrics"},
     {"scene", "fields", "rendering", "viewer"},
     {"model"},
     {"pipelines"},
     {"evaluation", "export", "labelling"},  # ssnerf-label's engine: --depth-from renders with a trained model
+    {"engine"},  # the trainer (atomic checkpoints, the last good one loaded)
     {"method_configs"},
     {"experiments"},
     {"scripts"},

@@ -56,7 +56,7 @@ def load_transforms(data: Path) -> Transforms:
         if not path.is_file():
             raise DatasetInputError(
                 f"{path}: missing. Point at a nerfstudio dataset folder (with a transforms.json, e.g. the output of "
-                "`ns-process-data images|video`), or import the data first (`ssnerf-import`, see README)."
+                "`ns-process-data images|video`), or import the data first (`ssnerf-import`, see docs/own-data.md)."
             )
     else:
         raise DatasetInputError(f"{data}: not a folder. Point at the dataset folder that holds transforms.json.")

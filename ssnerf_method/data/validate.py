@@ -1,4 +1,4 @@
-"""One check of a dataset against the SS-NeRF dataset format (README, "Dataset format") before anything is built on it.
+"""One check of a dataset against the SS-NeRF dataset format (docs/dataset-format.md) before anything is built on it.
 
 `validate_dataset` reports every fault it finds in one pass, each as one line that names the file (or the frame of
 transforms.json and its key) and says what to do: the JSON and its keys, the camera model and its parameters, every
@@ -8,7 +8,7 @@ otherwise (depth that is zero everywhere, and the labels, which each kind of the
 training will: class ids in range, normals of unit length). The files are checked on a few threads.
 
 `ssnerf-check` and `ssnerf-label` run it in full. The dataparser (so `ns-train`, `ns-eval`, `ns-render`) reads headers
-only by default: reading every label's pixels costs as much as loading them for training (README, "Checking a
+only by default: reading every label's pixels costs as much as loading them for training (docs/dataset-format.md, "Checking a
 dataset"), so there they are checked once, as the dataset decodes them, before the first training step.
 """
 

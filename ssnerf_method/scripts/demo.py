@@ -2,7 +2,7 @@
 
 Runs the same steps a user would type (`ssnerf-make-scene`, `ns-train`, `ns-eval`), in one process: the trained
 checkpoint is reloaded through nerfstudio's `eval_setup`, exactly as `ns-eval` loads it. Results: a metrics table on
-the console, `metrics.json`, `summary.png` (every property of one test view, ground truth above rendering; the README's
+the console, `metrics.json`, `summary.png` (every property of one test view, ground truth above rendering; the docs'
 first figure) and per test view one PNG per property (ground truth | rendering) under `renders/`.
 """
 
@@ -36,7 +36,7 @@ from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_sc
 
 DEMO_STEPS = {"ssnerf-lite": 700, "ssnerf": SHORT_RUN_STEPS["ssnerf"]}
 """The demo's training steps per method. On the CPU fewer than the benchmark's 1000, so that `make demo` stays within
-10 minutes end to end on 2 cores (README "What to expect" gives the time and what the 300 steps more would add)."""
+10 minutes end to end on 2 cores (CHANGELOG.md, 2026-12-02, gives the time and what the 300 steps more would add)."""
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """What both importers share: turning source pixels into our encodings, and writing frames and transforms.json.
 
 An importer reads its source layout, converts each frame's cameras and labels to the SS-NeRF dataset format (see
-README, "Dataset format") and hands them to a `DatasetWriter`, which writes into a `StagedOutputFolder` so that a
+docs/dataset-format.md) and hands them to a `DatasetWriter`, which writes into a `StagedOutputFolder` so that a
 failed import leaves nothing behind.
 """
 
