@@ -8,8 +8,8 @@ otherwise (depth that is zero everywhere, and the labels, which each kind of the
 training will: class ids in range, normals of unit length). The files are checked on a few threads.
 
 `ssnerf-check` and `ssnerf-label` run it in full. The dataparser (so `ns-train`, `ns-eval`, `ns-render`) reads headers
-only by default: reading every label's pixels costs as much as loading them for training (docs/dataset-format.md, "Checking a
-dataset"), so there they are checked once, as the dataset decodes them, before the first training step.
+only by default: reading every label's pixels costs as much as loading them for training (docs/dataset-format.md,
+"Checking a dataset"), so there they are checked once, as the dataset decodes them, before the first training step.
 """
 
 from __future__ import annotations
