@@ -95,7 +95,7 @@ def test_stroke_rays_are_the_painting_cameras_rays_in_the_runs_frame() -> None:
     c2w[:3, 3] = [0.2, -0.5, 0.3]
     painted_from = camera(c2w)  # in the run's frame, as the viewer gives it
     panel = LabelPanel(StrokeStore(Path("unused.json")), FRAME, ["void", "wall"], 4, torch.rand(4, 3), 16, True)
-    panel.store._write = lambda: None  # (no file here)
+    panel.store._write = lambda strokes, classes: None  # (no file here)
     panel.b_class.value = panel.entries()[1]
     stroke = panel.paint_disc(painted_from, (0.25, 0.5), 2.0)
     assert stroke is not None and stroke.class_name == "wall"
@@ -271,3 +271,19 @@ def test_ssnerf_check_and_ns_train_stop_at_a_strokes_file_that_does_not_parse(ti
         faults = [line for line in result.stderr.splitlines() if str(path) in line]
         assert len(faults) == 1 and "Traceback" not in result.stderr, result.stderr[-2000:]
     assert before == {file: file.read_bytes() for file in tiny_dataset.rglob("*") if file.is_file()}
+
+
+def test_a_stroke_that_cannot_be_saved_is_said_in_the_panel(tmp_path: Path, monkeypatch) -> None:
+    store = StrokeStore.load(tmp_path / STROKES_FILE)
+    panel = LabelPanel(store, FRAME, ["void", "wall"], 2, torch.rand(2, 3), 16, True)
+    assert panel.paint_disc(camera(np.eye(4)), (0.5, 0.5), 1.0) is not None
+
+    def read_only(path, mode="w"):
+        raise PermissionError(13, "Permission denied", str(path))
+
+    monkeypatch.setattr("ssnerf_method.data.strokes.atomic_file", read_only)
+    version = store.version
+    assert panel.paint_disc(camera(np.eye(4)), (0.5, 0.5), 1.0) is None
+    assert "cannot be written (Permission denied)" in panel.h_status.value
+    assert len(store.strokes) == 1 and store.version == version, "the store holds only what the file holds"
+    assert len(StrokeStore.load(store.path).strokes) == 1

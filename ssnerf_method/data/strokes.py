@@ -188,34 +188,34 @@ class StrokeStore:
     def add(self, stroke: Stroke) -> None:
         """Append a stroke and write the file (atomically) before returning."""
         with self._lock:
+            self._write([*self._strokes, stroke], self._classes)
             self._strokes.append(stroke)
-            self._write()
 
     def add_class(self, name: str) -> None:
         """Record a class added in the viewer (written at once: the next run knows its name and id)."""
         with self._lock:
             if name not in self._classes:
+                self._write(self._strokes, [*self._classes, name])
                 self._classes.append(name)
-                self._write()
 
     def undo(self) -> Optional[Stroke]:
         """Remove the last stroke (written at once); None when there is none."""
         with self._lock:
             if not self._strokes:
                 return None
-            stroke = self._strokes.pop()
-            self._write()
-            return stroke
+            self._write(self._strokes[:-1], self._classes)
+            return self._strokes.pop()
 
-    def _write(self) -> None:
-        """The whole file, atomically (call with the lock held)."""
-        self.version += 1
+    def _write(self, strokes: Sequence[Stroke], classes: Sequence[str]) -> None:
+        """The whole file holding `strokes` and `classes`, atomically (call with the lock held; the store takes them
+        only once they are written, so it never holds what the file lacks)."""
         data = {"format": FORMAT, "version": 1,
                 "frame": "the world frame of transforms.json (before nerfstudio orients and scales the poses)",
-                "classes": self._classes, "strokes": [stroke.to_json() for stroke in self._strokes]}
+                "classes": list(classes), "strokes": [stroke.to_json() for stroke in strokes]}
         with atomic_file(self.path) as stream:
             json.dump(data, stream)
             stream.write("\n")
+        self.version += 1
 
     def labelled_rays(self, frame: WorldFrame, class_ids: Dict[str, int]) -> Optional[LabelledRays]:
         """Every stroke's rays in a run's world frame (None when there are none). Strokes whose class has no id

@@ -187,7 +187,11 @@ class LabelPanel(nn.Module):
             self._say("Add a class first (New class, then Add class).")
             return None
         stroke = stroke_from_pixels(camera, pixels, self.class_names[class_id], self.frame)
-        self.store.add(stroke)
+        try:
+            self.store.add(stroke)
+        except OSError as err:  # (a read-only dataset: say so in the panel, the viewer goes on)
+            self._say(f"Not saved: {self.store.path} cannot be written ({err.strerror}).")
+            return None
         self._say(self.summary())
         return stroke
 
