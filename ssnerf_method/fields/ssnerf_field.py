@@ -22,6 +22,7 @@ from nerfstudio.field_components.spatial_distortions import SceneContraction
 from nerfstudio.fields.base_field import Field, get_normalized_directions
 
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
+from ssnerf_method.fields.compiled import CompiledOrEager
 from ssnerf_method.fields.encoders import PositionEncoder
 from ssnerf_method.properties import Branch, PropertySpec
 
@@ -146,39 +147,91 @@ class SSNeRFField(Field):
                       for key, group in groups.items()}
             self.decoders[branch] = GroupedDecoders(in_dim, widths, decoder_layers, groups)
 
-    def get_density(self, ray_samples: RaySamples) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
-        positions = self.spatial_distortion(ray_samples.frustums.get_positions())
-        raw_density, feature = self.encoder(positions)
+    def density_at(
+        self, positions: Float[Tensor, "*bs 3"]
+    ) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
+        """Density and the shared feature e_x at world positions (F_enc after the scene contraction)."""
+        raw_density, feature = self.encoder(self.spatial_distortion(positions))
         if self.training and self.density_noise > 0:
             raw_density = raw_density + torch.randn_like(raw_density) * self.density_noise
         if self.density_activation == "trunc_exp":
             return trunc_exp(raw_density), feature
         return torch.relu(raw_density), feature
 
-    def branch_inputs(self, branch: Branch, ray_samples: RaySamples, feature: Tensor) -> Tensor:
-        """The decoder input of one branch: the shared feature plus what that branch is conditioned on."""
+    def get_density(self, ray_samples: RaySamples) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
+        return self.density_at(ray_samples.frustums.get_positions())
+
+    def sample_pose(self, ray_samples: RaySamples, feature: Tensor) -> Optional[Tensor]:
+        """Each sample's flattened camera pose when F_dec^nv is pose-conditioned (the identity for rays without a
+        camera, e.g. nerfstudio's exporter probes), else None."""
+        if self.pose_encoding is None:
+            return None
+        if ray_samples.metadata is not None and POSE_METADATA_KEY in ray_samples.metadata:
+            return ray_samples.metadata[POSE_METADATA_KEY]
+        return torch.eye(4, device=feature.device)[:3].reshape(12).expand(*feature.shape[:-1], 12)
+
+    def decoder_inputs(
+        self, branch: Branch, feature: Tensor, directions: Tensor, pose: Optional[Tensor]
+    ) -> Float[Tensor, "*bs in_dim"]:
+        """The decoder input of one branch: the shared feature plus what that branch is conditioned on (the view
+        direction for `v`, the encoded pose for a pose-conditioned `nv`)."""
         inputs: List[Tensor] = [feature]
         if branch == "v":
-            directions = ray_samples.frustums.directions
             if getattr(self.direction_encoding, "tcnn_encoding", None) is not None:
                 # tcnn's SH takes [0, 1]; the torch path unit vectors
                 directions = get_normalized_directions(directions)
             inputs.append(self.direction_encoding(directions))
-        elif self.pose_encoding is not None:
-            if ray_samples.metadata is not None and POSE_METADATA_KEY in ray_samples.metadata:
-                pose = ray_samples.metadata[POSE_METADATA_KEY]
-            else:  # rays without a camera (nerfstudio's exporter probes): the identity pose
-                pose = torch.eye(4, device=feature.device)[:3].reshape(12).expand(*feature.shape[:-1], 12)
+        elif self.pose_encoding is not None and pose is not None:
             inputs.append(self.pose_encoding(pose).expand(*feature.shape[:-1], -1))
         return torch.cat(inputs, dim=-1)
+
+    def branch_inputs(self, branch: Branch, ray_samples: RaySamples, feature: Tensor) -> Tensor:
+        """`decoder_inputs` of samples."""
+        return self.decoder_inputs(branch, feature, ray_samples.frustums.directions,
+                                   self.sample_pose(ray_samples, feature))
+
+    def outputs_from_feature(self, feature: Tensor, directions: Tensor, pose: Optional[Tensor]) -> Dict[str, Tensor]:
+        """Each property's activated decoder output, by name."""
+        outputs: Dict[str, Tensor] = {}
+        for branch, decoder in self.decoders.items():
+            raw = decoder(self.decoder_inputs(branch, feature, directions, pose))
+            for name, values in raw.items():
+                outputs[name] = self.specs[name].kind.activation(values)
+        return outputs
 
     def get_outputs(
         self, ray_samples: RaySamples, density_embedding: Optional[Tensor] = None
     ) -> Dict[FieldHeadNames | str, Tensor]:
         assert density_embedding is not None
-        outputs: Dict[FieldHeadNames | str, Tensor] = {}
-        for branch, decoder in self.decoders.items():
-            raw = decoder(self.branch_inputs(branch, ray_samples, density_embedding))
-            for name, values in raw.items():
-                outputs[name] = self.specs[name].kind.activation(values)
-        return outputs
+        pose = self.sample_pose(ray_samples, density_embedding)
+        return dict(self.outputs_from_feature(density_embedding, ray_samples.frustums.directions, pose))
+
+    def evaluate(
+        self, positions: Float[Tensor, "num 3"], directions: Float[Tensor, "num 3"], pose: Optional[Tensor]
+    ) -> Tuple[Float[Tensor, "num 1"], Dict[str, Tensor]]:
+        """Density and every property at samples given as tensors: the whole field as one function of tensors (what
+        `compile_for_training` compiles)."""
+        density, feature = self.density_at(positions)
+        return density, self.outputs_from_feature(feature, directions, pose)
+
+    def compile_for_training(self) -> None:
+        """Run training forwards through `torch.compile` (`fields/compiled.py`); evaluation stays eager, so viewer
+        and render chunks of any size never wait for a compile. Parameters and state-dict keys are unchanged."""
+        self.compiled_evaluate = CompiledOrEager(self.evaluate, "the SS-NeRF field")
+
+    def forward(self, ray_samples: RaySamples, compute_normals: bool = False) -> Dict[FieldHeadNames | str, Tensor]:
+        compiled = getattr(self, "compiled_evaluate", None)
+        if compiled is None or compute_normals or not self.training:
+            return super().forward(ray_samples, compute_normals=compute_normals)
+        positions = ray_samples.frustums.get_positions()
+        pose = self.sample_pose(ray_samples, positions)
+        batch = positions.shape[:-1]
+        # one flat batch of samples: inductor lays out a flat batch's matmuls and activations far better than a
+        # (rays, samples) one (measured: the compiled field was slower than eager on the latter)
+        density, outputs = compiled(positions.reshape(-1, 3), ray_samples.frustums.directions.reshape(-1, 3),
+                                    None if pose is None else pose.expand(*batch, -1).reshape(-1, pose.shape[-1]))
+        field_outputs: Dict[FieldHeadNames | str, Tensor] = {
+            name: values.view(*batch, values.shape[-1]) for name, values in outputs.items()
+        }
+        field_outputs[FieldHeadNames.DENSITY] = density.view(*batch, 1)
+        return field_outputs

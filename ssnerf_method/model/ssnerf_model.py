@@ -137,6 +137,14 @@ class SSNeRFModelConfig(ModelConfig):
     hash_lookup: Literal["gathered", "nerfstudio"] = "gathered"
     """Torch-path hash grids (the field's and the proposal networks'): "gathered" reads the eight cell corners in one
     batch (`fields/encoders.py`, the same features, a faster CPU step), "nerfstudio" keeps `HashEncoding`'s lookup."""
+    compile_fields: bool = True
+    """CPU training: run the field's and the proposal networks' training forwards and backwards through
+    `torch.compile` (`fields/compiled.py`): the same outputs from a cheaper step, after a compile of tens of seconds at
+    the first step (less once inductor's cache in the temp folder holds it). Only in runs of at least
+    `compile_min_steps` steps; where compiling fails, one console line and eager steps. Evaluation, the viewer and
+    CUDA training stay eager."""
+    compile_min_steps: int = 300
+    """Runs of fewer training steps (the trainer's `max_num_iterations`) stay eager: the compile would not pay off."""
     balance_ratio: Optional[float] = None
     """Gradient-norm balancing (`model/loss_balancing.py`): if set, every `balance_every` steps each property's loss is
     scaled (by at most 1) so that its gradient into F_enc is at most this multiple of RGB's. None trains the paper's
@@ -263,6 +271,11 @@ class SSNeRFModel(Model):
     def get_training_callbacks(
         self, training_callback_attributes: TrainingCallbackAttributes
     ) -> List[TrainingCallback]:
+        # asked once, before the first step: where the run's length is known (without a trainer it is not: eager)
+        trainer = getattr(training_callback_attributes, "trainer", None)
+        run_steps = 0 if trainer is None else trainer.config.max_num_iterations
+        if self.config.compile_fields and self.device.type == "cpu" and run_steps >= self.config.compile_min_steps:
+            self.sampling.compile_for_training()
         callbacks = [
             TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.sampling.before_training_step),
             TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self.sampling.after_training_step),

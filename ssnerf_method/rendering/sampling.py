@@ -9,7 +9,7 @@ surfaces, and only the field's own samples are rendered; the proposals learn thr
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Tuple, Union
+from typing import Callable, Dict, List, Tuple, Union
 
 import numpy as np
 from jaxtyping import Float
@@ -20,6 +20,8 @@ from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.fields.base_field import Field
 from nerfstudio.model_components.ray_samplers import PDFSampler, ProposalNetworkSampler, UniformSampler
 
+from ssnerf_method.fields.compiled import CompiledOrEager
+from ssnerf_method.fields.ssnerf_field import SSNeRFField
 from ssnerf_method.rendering.weights import volume_weights
 
 
@@ -48,6 +50,15 @@ def evaluate(field_module: Field, ray_samples: RaySamples) -> SampleLevel:
     return SampleLevel(ray_samples, outputs, volume_weights(ray_samples, outputs[FieldHeadNames.DENSITY]))
 
 
+def flat_density(density_fn: Callable[[Tensor], Tensor]) -> Callable[[Tensor], Tensor]:
+    """`density_fn` evaluated on the positions as one flat batch (what a compiled network runs fastest on)."""
+
+    def density(positions: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 1"]:
+        return density_fn(positions.reshape(-1, 3)).view(*positions.shape[:-1], 1)
+
+    return density
+
+
 class RaySampling(nn.Module):
     """Interface: a ray bundle in, the evaluated and weighted sample levels out."""
 
@@ -66,6 +77,12 @@ class RaySampling(nn.Module):
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:
         """Parameters by optimizer group name (the method config names an optimizer per group)."""
         return {"fields": list(self.parameters())}
+
+    def compile_for_training(self) -> None:
+        """Run the networks' training forwards (and backwards) through `torch.compile` (`fields/compiled.py`)."""
+        for module in self.modules():
+            if isinstance(module, SSNeRFField):
+                module.compile_for_training()
 
 
 class HierarchicalSampling(RaySampling):
@@ -107,6 +124,8 @@ class ProposalSampling(RaySampling):
         def update_schedule(step: int) -> int:
             return int(np.clip(np.interp(step, [0, warmup_steps], [0, update_every]), 1, update_every))
 
+        self.density_fns: List[Callable[[Tensor], Tensor]] = [network.density_fn for network in proposal_networks]
+        """What the sampler calls for each proposal network's density while training (`compile_for_training`)."""
         self.sampler = ProposalNetworkSampler(
             num_nerf_samples_per_ray=num_field_samples,
             num_proposal_samples_per_ray=num_proposal_samples,
@@ -116,9 +135,8 @@ class ProposalSampling(RaySampling):
         )
 
     def forward(self, ray_bundle: RayBundle) -> SamplingResult:
-        ray_samples, weights_list, ray_samples_list = self.sampler(
-            ray_bundle, density_fns=[network.density_fn for network in self.proposal_networks]
-        )
+        density_fns = self.density_fns if self.training else [network.density_fn for network in self.proposal_networks]
+        ray_samples, weights_list, ray_samples_list = self.sampler(ray_bundle, density_fns=density_fns)
         level = evaluate(self.field_module, ray_samples)
         return SamplingResult(
             levels=[level],
@@ -133,6 +151,12 @@ class ProposalSampling(RaySampling):
 
     def after_training_step(self, step: int) -> None:
         self.sampler.step_cb(step)
+
+    def compile_for_training(self) -> None:
+        """The field's and each proposal network's training forwards through `torch.compile`."""
+        super().compile_for_training()
+        self.density_fns = [flat_density(CompiledOrEager(network.density_fn, f"proposal network {index}"))
+                            for index, network in enumerate(self.proposal_networks)]
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:
         return {

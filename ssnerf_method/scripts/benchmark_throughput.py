@@ -1,22 +1,28 @@
 """Training throughput (rays/s) of SS-NeRF against RGB-only SS-NeRF and nerfstudio's vanilla NeRF, in one run.
 
-    python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 5] [--rays 1024] \
-        [--time-budget 60] [--cases a b] [--rounds 3]
+    python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 12] [--rays 1024] \
+        [--time-budget 60] [--cases a b] [--rounds 3] [--threads 2] [--run-steps 1000]
 
-Five cases, all at the same rays per batch:
+Six cases, all at the same rays per batch:
 
-  (a) `ssnerf-lite`, all five properties          (a)/(b): what the properties cost on the lite architecture
+  (a) `ssnerf-lite`, all five properties, eager     (a)/(b): what the properties cost on the lite architecture
+      (today's step: `compile_fields=False`)
   (b) `ssnerf-lite`, RGB only (`properties=()`)
   (c) nerfstudio's `vanilla-nerf`                   (d)/(c): the paper's architecture with every property against
   (d) `ssnerf` (paper sizes), all properties              plain NeRF at equal rays and samples (coarse + fine)
   (e) (a) with nerfstudio's hash-grid lookup        (a)/(e): what the gathered lookup (`fields/encoders.py`) buys
       (`hash_lookup=nerfstudio`)
+  (f) (a) with the field and proposal networks      (f)/(a): what compiling buys, steady and over a whole run with
+      compiled (`compile_fields=True`), from a cold        the compile counted (a fresh inductor cache and dynamo
+      compile cache every round                           state every round: what a first run on a machine pays)
 
 Each case builds its pipeline and optimizers straight from the method config (no Trainer, no viewer, no logging),
-runs `--warmup` untimed training steps and then times `--steps` steps: loss dict, summed loss, backward, optimizer
-and scheduler step, zero_grad, plus the model's before/after-iteration training callbacks, as the Trainer does.
-Rays/s = rays per batch x timed steps / seconds. Torch's thread count is left as it is. With `--rounds N` the cases
-take turns N times and each reports its median round, so a ratio compares cases timed in the same minutes.
+runs `--warmup` training steps (timed apart: they hold the compile) and then times `--steps` steps: loss dict, summed
+loss, backward, optimizer and scheduler step, zero_grad, plus the model's before/after-iteration training callbacks,
+as the Trainer does. Rays/s = rays per batch x timed steps / seconds. A `--run-steps` run's time is the warm-up's
+seconds plus the remaining steps at the timed rate: compile time included. With `--threads N` torch runs N threads
+(else it is left as it is). With `--rounds N` the cases take turns N times and each reports its median round, so a
+ratio compares cases timed in the same minutes.
 
 (c) and (d) (8x256 MLPs, 64 + 64 samples per ray) take ~10 s per step on 2 CPU cores, so each case's timing stops
 once `--time-budget` seconds are spent (after at least `--min-steps` steps); the table shows the steps timed.
@@ -34,17 +40,20 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, ContextManager, Dict, List, Literal, Optional, Tuple
+from types import SimpleNamespace
+from typing import Callable, ContextManager, Dict, Iterator, List, Literal, Optional, Tuple, cast
 from unittest import mock
 
 import torch
 import tyro
+from torch._inductor.utils import fresh_cache
+from torch.autograd.profiler import record_function
 
 from nerfstudio.configs.method_configs import method_configs as nerfstudio_method_configs
 from nerfstudio.data.dataparsers.nerfstudio_dataparser import NerfstudioDataParserConfig
 from nerfstudio.engine.callbacks import TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.engine.optimizers import Optimizers
-from nerfstudio.engine.trainer import TrainerConfig
+from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
@@ -60,22 +69,28 @@ class BenchmarkConfig:
     """Dataset folder in the SS-NeRF format. Default: render the default scene into a temporary folder."""
     steps: int = 30
     """Timed training steps per case."""
-    warmup: int = 5
-    """Untimed training steps per case before timing (allocations, lazy initialisation)."""
+    warmup: int = 12
+    """Training steps per case before timing (allocations, lazy initialisation, compilation), timed apart. 12 holds
+    every compile of (f): step 10 is the first whose proposal networks run without gradients."""
     rays: int = 1024
     """Rays per training batch, for every case."""
     time_budget: float = 60.0
     """Seconds of timed steps per case: timing stops early once they are spent (after at least `min_steps`
     steps), so the paper-sized cases (c) and (d), ~10 s/step on 2 CPU cores, keep the run to a few minutes.
-    Warm-up stops early after a quarter of it (after at least 2 steps). 0 disables the budget."""
+    Warm-up stops early after a quarter of it (after at least 2 steps) in the cases that compile nothing. 0 disables
+    the budget."""
     min_steps: int = 3
     """Fewest timed steps per case when the time budget cuts timing short."""
-    cases: Tuple[Literal["a", "b", "c", "d", "e"], ...] = ("a", "b", "c", "d", "e")
+    cases: Tuple[Literal["a", "b", "c", "d", "e", "f"], ...] = ("a", "b", "c", "d", "e", "f")
     """Cases to run (a ratio is printed when both of its cases ran)."""
     rounds: int = 1
     """Times every case is timed, the cases taking turns (a b a b ...), so that a drift in the machine's speed (which
     on a shared 2-core machine can reach a fifth within minutes) falls on every case alike; each case reports its
     median round."""
+    threads: Optional[int] = None
+    """Torch threads (`torch.set_num_threads`); None leaves torch's default."""
+    run_steps: int = 1000
+    """Length of the training run whose time (warm-up, compile included, then the timed rate) each case reports."""
     output: Optional[Path] = None
     """Optional JSON file to save the numbers to."""
 
@@ -93,6 +108,9 @@ class CaseResult:
     rays_per_batch: int
     steps: int
     seconds: float
+    warmup_steps: int = 0
+    warmup_seconds: float = 0.0
+    """Seconds of the warm-up steps (compilation included)."""
 
     @property
     def ms_per_step(self) -> float:
@@ -102,12 +120,32 @@ class CaseResult:
     def rays_per_second(self) -> float:
         return self.rays_per_batch * self.steps / self.seconds
 
-    def to_dict(self) -> Dict:
+    def run_seconds(self, run_steps: int) -> float:
+        """Seconds of a `run_steps`-step run: the warm-up as measured, then the timed rate."""
+        return self.warmup_seconds + max(run_steps - self.warmup_steps, 0) * self.seconds / self.steps
+
+    def to_dict(self, run_steps: int = 1000) -> Dict:
         return {
             "case": self.key, "label": self.label, "method": self.method, "properties": self.properties,
             "rays_per_batch": self.rays_per_batch, "steps": self.steps, "seconds": self.seconds,
             "ms_per_step": self.ms_per_step, "rays_per_second": self.rays_per_second,
+            "warmup_steps": self.warmup_steps, "warmup_seconds": self.warmup_seconds,
+            "run_steps": run_steps, "run_seconds": self.run_seconds(run_steps),
         }
+
+
+@dataclass
+class Case:
+    """One benchmark case: how to build its trainer config, and the context its whole timing runs in."""
+
+    key: str
+    label: str
+    method: str
+    properties: List[str]
+    build: Callable[[], TrainerConfig]
+    context: Callable[[], ContextManager] = contextlib.nullcontext
+    compiles: bool = False
+    """Its warm-up holds a compile: never cut short by the time budget."""
 
 
 # --------------------------------------------------------------------------------------------------------- data
@@ -185,46 +223,64 @@ def _sync(device: str) -> None:
         torch.cuda.synchronize()
 
 
+STAGE_PREFIX = "ssnerf::"
+"""Prefix of the profiler ranges a `TrainingStep` opens (`scripts/profile_step.py` reads them)."""
+
+
+class TrainingStep:
+    """One training step as nerfstudio's Trainer runs it, on a pipeline and optimizers built straight from a method
+    config (no Trainer, no viewer, no logging): the model's before-iteration callbacks, loss dict, summed loss,
+    backward, optimizer and scheduler step, after-iteration callbacks."""
+
+    def __init__(self, config: TrainerConfig) -> None:
+        self.device = config.machine.device_type
+        torch.manual_seed(0)
+        self.pipeline = config.pipeline.setup(device=self.device, test_mode="val")
+        self.pipeline.train()
+        self.optimizers = Optimizers(config.optimizers, self.pipeline.get_param_groups())
+        # the model reads the run's length from the trainer (`compile_min_steps`): a stand-in holding the config
+        trainer = cast(Trainer, SimpleNamespace(config=config))
+        self.callbacks = self.pipeline.get_training_callbacks(
+            TrainingCallbackAttributes(optimizers=self.optimizers, grad_scaler=None, pipeline=self.pipeline,
+                                       trainer=trainer)
+        )
+
+    def __call__(self, step: int) -> None:
+        with record_function(STAGE_PREFIX + "step"):
+            with record_function(STAGE_PREFIX + "callbacks"):
+                for callback in self.callbacks:
+                    callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
+            with record_function(STAGE_PREFIX + "optimizer"):
+                self.optimizers.zero_grad_all()
+            _, loss_dict, _ = self.pipeline.get_train_loss_dict(step=step)
+            loss = functools.reduce(torch.add, loss_dict.values())
+            with record_function(STAGE_PREFIX + "backward"):
+                loss.backward()
+            with record_function(STAGE_PREFIX + "optimizer"):
+                self.optimizers.optimizer_step_all()
+                self.optimizers.scheduler_step_all(step)
+            with record_function(STAGE_PREFIX + "callbacks"):
+                for callback in self.callbacks:
+                    callback.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
+
+
 def time_training(
-    config: TrainerConfig,
-    steps: int,
-    warmup: int,
-    time_budget: float = 0.0,
-    min_steps: int = 3,
-    setup_context: Optional[Callable[[], ContextManager]] = None,
-) -> Tuple[int, float]:
-    """Build pipeline + optimizers from `config`, run the warm-up, return (timed steps, their seconds)."""
-    device = config.machine.device_type
-    torch.manual_seed(0)
-    context = setup_context() if setup_context is not None else contextlib.nullcontext()
-    with context:
-        pipeline = config.pipeline.setup(device=device, test_mode="val")
-    pipeline.train()
-    optimizers = Optimizers(config.optimizers, pipeline.get_param_groups())
-    callbacks = pipeline.get_training_callbacks(
-        TrainingCallbackAttributes(optimizers=optimizers, grad_scaler=None, pipeline=pipeline, trainer=None)
-    )
-
-    def train_step(step: int) -> None:
-        for callback in callbacks:
-            callback.run_callback_at_location(step, location=TrainingCallbackLocation.BEFORE_TRAIN_ITERATION)
-        optimizers.zero_grad_all()
-        _, loss_dict, _ = pipeline.get_train_loss_dict(step=step)
-        loss = functools.reduce(torch.add, loss_dict.values())
-        loss.backward()
-        optimizers.optimizer_step_all()
-        optimizers.scheduler_step_all(step)
-        for callback in callbacks:
-            callback.run_callback_at_location(step, location=TrainingCallbackLocation.AFTER_TRAIN_ITERATION)
-
+    config: TrainerConfig, steps: int, warmup: int, time_budget: float = 0.0, min_steps: int = 3,
+    cut_warmup: bool = True,
+) -> Tuple[int, float, int, float]:
+    """Build pipeline + optimizers from `config`, run the warm-up, time the steps; returns (timed steps, their
+    seconds, warm-up steps, their seconds, the pipeline's construction excluded)."""
+    train_step = TrainingStep(config)
+    device = train_step.device
     step = 0
     start = time.perf_counter()
     while step < warmup:
         train_step(step)
         step += 1
-        if time_budget > 0 and step >= 2 and time.perf_counter() - start > time_budget / 4:
+        if cut_warmup and time_budget > 0 and step >= 2 and time.perf_counter() - start > time_budget / 4:
             break
     _sync(device)
+    warmup_steps, warmup_seconds = step, time.perf_counter() - start
     timed = 0
     start = time.perf_counter()
     while timed < steps:
@@ -236,7 +292,16 @@ def time_training(
             if time.perf_counter() - start > time_budget:
                 break
     _sync(device)
-    return timed, time.perf_counter() - start
+    return timed, time.perf_counter() - start, warmup_steps, warmup_seconds
+
+
+@contextlib.contextmanager
+def cold_compile() -> Iterator[None]:
+    """A first compile on this machine: a fresh inductor cache folder and no in-memory dynamo or inductor state."""
+    torch._dynamo.reset()
+    with fresh_cache():
+        yield
+    torch._dynamo.reset()
 
 
 def _load_average() -> Optional[float]:
@@ -246,12 +311,14 @@ def _load_average() -> Optional[float]:
         return None
 
 
-def format_table(results: Dict[str, CaseResult]) -> str:
-    rows = [("case", "method", "properties", "rays/batch", "steps", "ms/step", "rays/s")]
+def format_table(results: Dict[str, CaseResult], run_steps: int = 1000) -> str:
+    rows = [("case", "method", "properties", "rays/batch", "steps", "ms/step", "rays/s", "warm-up s",
+             f"{run_steps}-step run s")]
     for result in results.values():
         props = ",".join(result.properties) if result.properties else "rgb only"
         rows.append((result.key, result.method, props, str(result.rays_per_batch), str(result.steps),
-                     f"{result.ms_per_step:.1f}", f"{result.rays_per_second:.0f}"))
+                     f"{result.ms_per_step:.1f}", f"{result.rays_per_second:.0f}",
+                     f"{result.warmup_seconds:.1f} ({result.warmup_steps})", f"{result.run_seconds(run_steps):.0f}"))
     widths = [max(len(row[col]) for row in rows) for col in range(len(rows[0]))]
     lines = ["  ".join(cell.ljust(width) for cell, width in zip(row, widths)).rstrip() for row in rows]
     lines.insert(1, "  ".join("-" * width for width in widths))
@@ -259,6 +326,8 @@ def format_table(results: Dict[str, CaseResult]) -> str:
 
 
 def run(config: BenchmarkConfig) -> Dict:
+    if config.threads is not None:
+        torch.set_num_threads(config.threads)
     with tempfile.TemporaryDirectory(prefix="ssnerf_bench_") as tmp:
         data = config.data if config.data is not None else prepare_data(Path(tmp))
         data = Path(data)
@@ -269,46 +338,59 @@ def run(config: BenchmarkConfig) -> Dict:
                       f"steps: {config.steps} (+{config.warmup} warm-up)  rays/batch: {config.rays}")
 
         cases = [
-            ("a", "ssnerf-lite, all properties", "ssnerf-lite", list(OPTIONAL_PROPERTIES),
-             lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES), None),
-            ("b", "ssnerf-lite, RGB only", "ssnerf-lite", [],
-             lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, ()), None),
-            ("c", f"vanilla-nerf, {paper.num_coarse_samples}+{paper.num_fine_samples} samples", "vanilla-nerf", [],
-             lambda: _vanilla_nerf_case(data, config.rays), _offline_vanilla_nerf),
-            ("d", f"ssnerf (paper), all properties, {paper.num_coarse_samples}+{paper.num_fine_samples} samples",
-             "ssnerf", list(OPTIONAL_PROPERTIES),
-             lambda: _ssnerf_case(ssnerf_config, data, config.rays, OPTIONAL_PROPERTIES), None),
-            ("e", "ssnerf-lite, all properties, nerfstudio's hash lookup", "ssnerf-lite", list(OPTIONAL_PROPERTIES),
-             lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
-                                  hash_lookup="nerfstudio"), None),
+            Case("a", "ssnerf-lite, all properties, eager", "ssnerf-lite", list(OPTIONAL_PROPERTIES),
+                 lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
+                                      compile_fields=False)),
+            Case("b", "ssnerf-lite, RGB only", "ssnerf-lite", [],
+                 lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, (), compile_fields=False)),
+            Case("c", f"vanilla-nerf, {paper.num_coarse_samples}+{paper.num_fine_samples} samples", "vanilla-nerf", [],
+                 lambda: _vanilla_nerf_case(data, config.rays), _offline_vanilla_nerf),
+            Case("d", f"ssnerf (paper), all properties, {paper.num_coarse_samples}+{paper.num_fine_samples} "
+                 "samples", "ssnerf", list(OPTIONAL_PROPERTIES),
+                 lambda: _ssnerf_case(ssnerf_config, data, config.rays, OPTIONAL_PROPERTIES, compile_fields=False)),
+            Case("e", "ssnerf-lite, all properties, nerfstudio's hash lookup", "ssnerf-lite",
+                 list(OPTIONAL_PROPERTIES),
+                 lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
+                                      hash_lookup="nerfstudio", compile_fields=False)),
+            Case("f", "ssnerf-lite, all properties, compiled (cold)", "ssnerf-lite", list(OPTIONAL_PROPERTIES),
+                 lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
+                                      compile_fields=True), cold_compile, compiles=True),
         ]
         load_before = _load_average()
         rounds: Dict[str, List[CaseResult]] = {}
         for round_index in range(config.rounds):
-            for key, label, method, properties, build, context in cases:
-                if key not in config.cases:
+            for case in cases:
+                if case.key not in config.cases:
                     continue
-                CONSOLE.print(f"({key}) {label}" + (f", round {round_index + 1}" if config.rounds > 1 else "") + " ...")
-                steps, seconds = time_training(
-                    build(), config.steps, config.warmup, config.time_budget, config.min_steps, context
-                )
-                result = CaseResult(key, label, method, properties, config.rays, steps, seconds)
-                rounds.setdefault(key, []).append(result)
+                CONSOLE.print(f"({case.key}) {case.label}"
+                              + (f", round {round_index + 1}" if config.rounds > 1 else "") + " ...")
+                with case.context():
+                    steps, seconds, warmup_steps, warmup_seconds = time_training(
+                        case.build(), config.steps, config.warmup, config.time_budget, config.min_steps,
+                        cut_warmup=not case.compiles,
+                    )
+                result = CaseResult(case.key, case.label, case.method, case.properties, config.rays, steps, seconds,
+                                    warmup_steps, warmup_seconds)
+                rounds.setdefault(case.key, []).append(result)
                 gc.collect()  # the case's pipeline went with time_training's frame; free its memory before the next
                 if torch.cuda.is_available():
                     torch.cuda.empty_cache()
-                CONSOLE.print(f"    {result.ms_per_step:.1f} ms/step, {result.rays_per_second:.0f} rays/s")
+                CONSOLE.print(f"    {result.ms_per_step:.1f} ms/step, {result.rays_per_second:.0f} rays/s; warm-up "
+                              f"{warmup_steps} steps in {warmup_seconds:.1f} s")
         results = {key: sorted(timed, key=lambda result: result.ms_per_step)[(len(timed) - 1) // 2]
                    for key, timed in rounds.items()}
 
     load_after = _load_average()
     ratios = {
         f"{num}/{den}": results[num].rays_per_second / results[den].rays_per_second
-        for num, den in (("a", "b"), ("d", "c"), ("a", "e"))
+        for num, den in (("a", "b"), ("d", "c"), ("a", "e"), ("f", "a"))
         if num in results and den in results
     }
+    run_ratio = None
+    if "f" in results and "a" in results:
+        run_ratio = results["a"].run_seconds(config.run_steps) / results["f"].run_seconds(config.run_steps)
     print()
-    print(format_table(results))
+    print(format_table(results, config.run_steps))
     print()
     if "a/b" in ratios:
         print(f"(a)/(b) ssnerf-lite all properties / RGB only:              {ratios['a/b']:.3f}x throughput")
@@ -316,10 +398,15 @@ def run(config: BenchmarkConfig) -> Dict:
         print(f"(d)/(c) ssnerf all properties / vanilla-nerf ({samples} samples/ray): {ratios['d/c']:.3f}x throughput")
     if "a/e" in ratios:
         print(f"(a)/(e) ssnerf-lite gathered / nerfstudio's hash lookup:    {ratios['a/e']:.3f}x throughput")
+    if "f/a" in ratios and run_ratio is not None:
+        print(f"(f)/(a) ssnerf-lite compiled / eager:                       {ratios['f/a']:.3f}x throughput, "
+              f"{run_ratio:.3f}x steps per second over a {config.run_steps}-step run, compile included")
     busy = [load for load in (load_before, load_after) if load is not None and load > (os.cpu_count() or 1) + 0.5]
+    print(f"torch threads: {torch.get_num_threads()}; 1-min load average {load_before} before / {load_after} after on "
+          f"{os.cpu_count()} cores")
     if device == "cpu" and busy:
-        print(f"Note: 1-min load average {load_before} before / {load_after} after on {os.cpu_count()} cores: other "
-              "processes shared the CPU, so absolute rays/s are low and the ratios noisy; rerun on an idle machine.")
+        print("Note: other processes shared the CPU, so absolute rays/s are low and the ratios noisy (with several "
+              "threads most of all); rerun on an idle machine.")
 
     report = {
         "device": device,
@@ -332,9 +419,11 @@ def run(config: BenchmarkConfig) -> Dict:
         "load_average_1min": {"before": load_before, "after": load_after},
         "samples_per_ray_c_d": samples,
         "rounds": config.rounds,
-        "cases": {key: result.to_dict() for key, result in results.items()},
+        "run_steps": config.run_steps,
+        "cases": {key: result.to_dict(config.run_steps) for key, result in results.items()},
         "ms_per_step_by_round": {key: [result.ms_per_step for result in timed] for key, timed in rounds.items()},
         "ratios": ratios,
+        "run_ratio_f_over_a": run_ratio,
     }
     if config.output is not None:
         config.output.parent.mkdir(parents=True, exist_ok=True)

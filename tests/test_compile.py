@@ -1,0 +1,233 @@
+"""The compiled training step (`compile_fields`): the same outputs and gradients as eager, an eager fallback, when the
+model compiles, unchanged checkpoints and configs; and the step profiler (`scripts/profile_step.py`).
+
+The two tests that compile share one tiny model (a 2-level hash grid, 16-wide decoders, one proposal network), so
+the suite pays for one small compile of the field and one of the proposal network."""
+
+from __future__ import annotations
+
+import copy
+import json
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Dict, List
+
+import pytest
+import torch
+import yaml
+
+from nerfstudio.cameras.rays import Frustums, RaySamples
+from nerfstudio.engine.callbacks import TrainingCallbackAttributes
+from nerfstudio.field_components.field_heads import FieldHeadNames
+
+from ssnerf_method.fields.compiled import CompiledOrEager
+from ssnerf_method.method_configs import ssnerf_lite_config
+from ssnerf_method.model.ssnerf_model import SSNeRFModel, SSNeRFModelConfig
+from ssnerf_method.properties import OPTIONAL_PROPERTIES
+from ssnerf_method.scripts import profile_step
+from ssnerf_method.scripts.benchmark_throughput import TrainingStep, _ssnerf_case
+
+from test_rendering import tiny_model
+
+LITE = dict(sampling="proposal", num_proposal_samples=(6,), proposal_max_res=(16,), num_field_samples=5,
+            direction_encoding="sh", density_activation="trunc_exp", decoder_sharing="property", decoder_layers=2)
+"""`ssnerf-lite`'s architecture at a tiny size (`tiny_model` shrinks the grid and the decoders)."""
+
+
+def lite_model(**overrides) -> SSNeRFModel:
+    torch.manual_seed(0)
+    model = tiny_model(**{**LITE, **overrides})
+    with torch.no_grad():  # spread the hash tables (nerfstudio starts them near zero) so that every corner counts
+        for name, parameter in model.named_parameters():
+            if name.endswith("hash_table"):
+                parameter.uniform_(-1.0, 1.0)
+    model.train()
+    return model
+
+
+def run_for(steps: int) -> TrainingCallbackAttributes:
+    """What a trainer of a `steps`-step run hands the model."""
+    trainer = SimpleNamespace(config=SimpleNamespace(max_num_iterations=steps))
+    return TrainingCallbackAttributes(optimizers=None, grad_scaler=None, pipeline=None, trainer=trainer)  # type: ignore
+
+
+def samples(num_rays: int = 7, num_samples: int = 5) -> RaySamples:
+    """Samples spread over the contracted scene, inside and outside the unit box."""
+    generator = torch.Generator().manual_seed(3)
+    shape = (num_rays, num_samples)
+    starts = torch.rand(*shape, 1, generator=generator) * 3.0
+    return RaySamples(frustums=Frustums(
+        origins=torch.rand(*shape, 3, generator=generator) * 2.0 - 1.0,
+        directions=torch.nn.functional.normalize(torch.randn(*shape, 3, generator=generator), dim=-1),
+        starts=starts, ends=starts + 0.05, pixel_area=torch.ones(*shape, 1),
+    ))
+
+
+def outputs_and_gradients(model: SSNeRFModel, evaluate) -> tuple[Dict[str, torch.Tensor], Dict[str, torch.Tensor]]:
+    """`evaluate(model)`'s tensors, and the gradients a fixed weighting of them sends into the model's parameters."""
+    model.zero_grad(set_to_none=True)
+    outputs = evaluate(model)
+    generator = torch.Generator().manual_seed(5)
+    loss = sum((values * torch.randn(values.shape, generator=generator)).sum() for values in outputs.values())
+    loss.backward()
+    gradients = {name: parameter.grad.clone() for name, parameter in model.named_parameters()
+                 if parameter.grad is not None}
+    return {name: values.detach() for name, values in outputs.items()}, gradients
+
+
+@pytest.fixture(scope="module")
+def eager_and_compiled() -> List[SSNeRFModel]:
+    """The same tiny lite model twice, the second compiled as a long run compiles it (one compile per module)."""
+    eager = lite_model()
+    compiled = copy.deepcopy(eager)
+    compiled.get_training_callbacks(run_for(1000))
+    return [eager, compiled]
+
+
+def assert_same(eager: Dict[str, torch.Tensor], compiled: Dict[str, torch.Tensor]) -> None:
+    assert eager.keys() == compiled.keys()
+    for name in eager:
+        torch.testing.assert_close(compiled[name], eager[name], rtol=1e-4, atol=1e-5, msg=name)
+
+
+def test_the_compiled_field_gives_the_eager_outputs_and_gradients(eager_and_compiled: List[SSNeRFModel]) -> None:
+    eager, compiled = eager_and_compiled
+    ray_samples = samples()
+
+    def field_outputs(model: SSNeRFModel) -> Dict[str, torch.Tensor]:
+        return {str(name): values for name, values in model.sampling.field_module(ray_samples).items()}
+
+    expected, expected_gradients = outputs_and_gradients(eager, field_outputs)
+    got, gradients = outputs_and_gradients(compiled, field_outputs)
+    assert compiled.sampling.field_module.compiled_evaluate.compiled is not None, "compiling fell back to eager"
+    assert set(expected) == {"rgb", "semantics", "normals", "shading", str(FieldHeadNames.DENSITY)}
+    assert_same(expected, got)
+    assert set(expected_gradients) >= {"sampling.field_module.encoder.mlp.model.0.hash_table",
+                                       "sampling.field_module.decoders.v.decoders.rgb.heads.weight"}
+    assert_same(expected_gradients, gradients)
+
+
+def test_the_compiled_proposal_network_gives_the_eager_densities_and_gradients(
+    eager_and_compiled: List[SSNeRFModel],
+) -> None:
+    eager, compiled = eager_and_compiled
+    positions = samples(num_rays=9, num_samples=6).frustums.get_positions()
+    assert isinstance(compiled.sampling.density_fns[0], type(lambda: None))  # the flattening wrapper
+
+    def density(model: SSNeRFModel) -> Dict[str, torch.Tensor]:
+        return {"density": model.sampling.density_fns[0](positions)}
+
+    expected, expected_gradients = outputs_and_gradients(eager, density)
+    got, gradients = outputs_and_gradients(compiled, density)
+    assert_same(expected, got)
+    assert any(name.startswith("sampling.proposal_networks.0") for name in expected_gradients)
+    assert_same(expected_gradients, gradients)
+
+
+def test_evaluation_never_calls_the_compiled_field() -> None:
+    model = lite_model()
+    model.get_training_callbacks(run_for(1000))
+    field = model.sampling.field_module
+    field.compiled_evaluate = "not a function"  # type: ignore[assignment]  (fails if called)
+    model.eval()
+    density = field(samples())[FieldHeadNames.DENSITY]
+    assert density.shape == (7, 5, 1)
+    model.train()
+    with pytest.raises(TypeError):
+        field(samples())
+
+
+@pytest.mark.parametrize("attributes, compile_fields, compiles", [
+    (run_for(1000), True, True),
+    (run_for(299), True, False),  # shorter than compile_min_steps (300)
+    (run_for(1000), False, False),
+    (TrainingCallbackAttributes(optimizers=None, grad_scaler=None, pipeline=None, trainer=None), True, False),
+    (None, True, False),
+])
+def test_only_long_cpu_runs_compile(attributes, compile_fields: bool, compiles: bool) -> None:
+    model = lite_model(compile_fields=compile_fields)
+    plain = lite_model(compile_fields=False)
+    model.get_training_callbacks(attributes)
+    field = model.sampling.field_module
+    assert (getattr(field, "compiled_evaluate", None) is not None) == compiles
+    density_fns = model.sampling.density_fns
+    assert all(getattr(function, "__self__", None) is not None for function in density_fns) != compiles
+    assert list(model.state_dict()) == list(plain.state_dict())  # checkpoints are the same either way
+    assert all(model.state_dict()[key].shape == value.shape for key, value in plain.state_dict().items())
+
+
+def test_a_failed_compile_runs_eagerly_with_one_line(monkeypatch, capsys) -> None:
+    calls = []
+
+    def broken(function, **kwargs):
+        def run(*args):
+            calls.append(args)
+            raise RuntimeError("C++ compile error\nfull log ...")
+        return run
+
+    monkeypatch.setattr(torch, "compile", broken)
+    double = CompiledOrEager(lambda x: 2 * x, "a test function")
+    assert torch.equal(double(torch.ones(2)), torch.full((2,), 2.0))
+    assert torch.equal(double(torch.ones(3)), torch.full((3,), 2.0))
+    assert len(calls) == 1, "a failed compile is not retried"
+    lines = [line for line in capsys.readouterr().out.splitlines() if line.strip()]
+    assert len(lines) == 1 and "a test function" in lines[0] and "C++ compile error" in lines[0]
+    assert "eager" in lines[0]
+
+
+def test_configs_saved_before_compile_fields_existed_load_with_the_defaults() -> None:
+    text = yaml.dump(SSNeRFModelConfig(properties=("semantics",)))
+    new_fields = ("compile_fields:", "compile_min_steps:")
+    old = "\n".join(line for line in text.splitlines() if not line.startswith(new_fields))
+    assert old != text
+    config = yaml.load(old, Loader=yaml.Loader)
+    assert isinstance(config, SSNeRFModelConfig) and config.properties == ("semantics",)
+    assert config.compile_fields is True and config.compile_min_steps == 300
+
+
+# --------------------------------------------------------------------------------------------------- profiler
+
+
+@pytest.mark.parametrize("name, stage, expected", [
+    ("aten::index_select", "field", "hash-grid gather / scatter"),
+    ("aten::scatter_add_", "backward", "hash-grid gather / scatter"),
+    ("aten::addmm", "decoders", "matmul (MLPs)"),
+    ("aten::sqrt", "optimizer", "optimizer (Adam)"),
+    ("aten::sqrt", "field", profile_step.ELEMENTWISE),
+    ("aten::bitwise_xor", "hash_grid", "hash arithmetic (xor, floor, ceil, mod)"),
+    ("## Call CompiledFxGraph abc ##", "field", "compiled"),
+    ("aten::searchsorted", "sampling", "sampling (sort, search, gather)"),
+])
+def test_profile_categories(name: str, stage: str, expected: str) -> None:
+    assert profile_step.category(name, stage) == expected
+
+
+def test_profile_step_reports_stages_kinds_and_arithmetic(tiny_dataset: Path, tmp_path: Path) -> None:
+    report = profile_step.run(profile_step.ProfileStepConfig(
+        data=tiny_dataset, steps=2, warmup=1, threads=1, rays=64, compile=False, peak_size=256, top=5,
+        output_dir=tmp_path / "profile",
+    ))
+    stages = report["profile"]["stages_ms"]
+    for stage in ("data", "proposal_networks", "sampling", "hash_grid", "encoder", "decoders", "losses", "backward",
+                  "optimizer"):
+        assert stages[stage] > 0, stage
+    assert sum(stages.values()) <= report["profile"]["wall_ms"] * 1.01
+    kinds = report["profile"]["categories_ms"]
+    assert kinds["matmul (MLPs)"]["forward"] > 0 and kinds["matmul (MLPs)"]["backward"] > 0
+    assert kinds["hash-grid gather / scatter"]["backward"] > 0  # the table's gradient
+    arithmetic = report["arithmetic"]
+    assert arithmetic["gflop"] > 0 and arithmetic["peak_gflops"] > 0
+    assert 0 < arithmetic["achieved_fraction"] < 1
+    text = (tmp_path / "profile" / "step_profile.md").read_text()
+    assert "field decoders (forward)" in text and "GFLOP" in text and "eager" in text
+    assert json.loads((tmp_path / "profile" / "step_profile.json").read_text())["compiled"] is False
+
+
+def test_the_benchmark_step_compiles_as_a_long_run_does(tiny_dataset: Path) -> None:
+    """`TrainingStep` hands the model its config's run length, so the benchmark times what a real run trains."""
+    case = _ssnerf_case(ssnerf_lite_config, tiny_dataset, 32, OPTIONAL_PROPERTIES)
+    assert case.max_num_iterations >= case.pipeline.model.compile_min_steps  # type: ignore[attr-defined]
+    field = TrainingStep(case).pipeline.model.sampling.field_module
+    assert getattr(field, "compiled_evaluate", None) is not None
+    eager = TrainingStep(_ssnerf_case(ssnerf_lite_config, tiny_dataset, 32, OPTIONAL_PROPERTIES, compile_fields=False))
+    assert getattr(eager.pipeline.model.sampling.field_module, "compiled_evaluate", None) is None
