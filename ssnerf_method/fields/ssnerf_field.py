@@ -152,11 +152,15 @@ class SSNeRFField(Field):
     ) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
         """Density and the shared feature e_x at world positions (F_enc after the scene contraction)."""
         raw_density, feature = self.encoder(self.spatial_distortion(positions))
+        return self.activate_density(raw_density), feature
+
+    def activate_density(self, raw_density: Float[Tensor, "*bs 1"]) -> Float[Tensor, "*bs 1"]:
+        """Density from F_enc's raw output: the training noise (NeRF's regulariser), then the activation."""
         if self.training and self.density_noise > 0:
             raw_density = raw_density + torch.randn_like(raw_density) * self.density_noise
         if self.density_activation == "trunc_exp":
-            return trunc_exp(raw_density), feature
-        return torch.relu(raw_density), feature
+            return trunc_exp(raw_density)
+        return torch.relu(raw_density)
 
     def get_density(self, ray_samples: RaySamples) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
         return self.density_at(ray_samples.frustums.get_positions())
@@ -209,10 +213,11 @@ class SSNeRFField(Field):
     def evaluate(
         self, positions: Float[Tensor, "num 3"], directions: Float[Tensor, "num 3"], pose: Optional[Tensor]
     ) -> Tuple[Float[Tensor, "num 1"], Dict[str, Tensor]]:
-        """Density and every property at samples given as tensors: the whole field as one function of tensors (what
-        `compile_for_training` compiles)."""
-        density, feature = self.density_at(positions)
-        return density, self.outputs_from_feature(feature, directions, pose)
+        """F_enc's raw density and every property at samples given as tensors: the field as one function of tensors
+        (what `compile_for_training` compiles). The density's noise and activation stay outside, so that the noise
+        comes from torch's generator as in eager steps (inductor draws its own random numbers)."""
+        raw_density, feature = self.encoder(self.spatial_distortion(positions))
+        return raw_density, self.outputs_from_feature(feature, directions, pose)
 
     def compile_for_training(self) -> None:
         """Run training forwards through `torch.compile` (`fields/compiled.py`); evaluation stays eager, so viewer
@@ -228,10 +233,10 @@ class SSNeRFField(Field):
         batch = positions.shape[:-1]
         # one flat batch of samples: inductor lays out a flat batch's matmuls and activations far better than a
         # (rays, samples) one (measured: the compiled field was slower than eager on the latter)
-        density, outputs = compiled(positions.reshape(-1, 3), ray_samples.frustums.directions.reshape(-1, 3),
-                                    None if pose is None else pose.expand(*batch, -1).reshape(-1, pose.shape[-1]))
+        raw_density, outputs = compiled(positions.reshape(-1, 3), ray_samples.frustums.directions.reshape(-1, 3),
+                                        None if pose is None else pose.expand(*batch, -1).reshape(-1, pose.shape[-1]))
         field_outputs: Dict[FieldHeadNames | str, Tensor] = {
             name: values.view(*batch, values.shape[-1]) for name, values in outputs.items()
         }
-        field_outputs[FieldHeadNames.DENSITY] = density.view(*batch, 1)
+        field_outputs[FieldHeadNames.DENSITY] = self.activate_density(raw_density.view(*batch, 1))
         return field_outputs
