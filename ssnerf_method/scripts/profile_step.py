@@ -1,6 +1,6 @@
 """Where an all-properties `ssnerf-lite` training step goes, and how much arithmetic it does against the machine's peak.
 
-    python -m ssnerf_method.scripts.profile_step [--steps 5] [--warmup 5] [--threads 2] [--compile True|False]
+    python -m ssnerf_method.scripts.profile_step [--steps 5] [--warmup 12] [--threads 2] [--compile True|False]
 
 Builds the pipeline and optimizers as `benchmark_throughput` does (the default scene, 1024 rays, every property),
 runs `--warmup` untimed steps, then profiles `--steps` steps with `torch.profiler` at `--threads` threads and reports:
@@ -12,7 +12,9 @@ runs `--warmup` untimed steps, then profiles `--steps` steps with `torch.profile
 - the arithmetic of one step (`torch.utils.flop_counter.FlopCounterMode`: matmuls, forward and backward), the
   machine's measured fp32 matmul peak at the same threads, and the ratio of the two rates.
 
-It writes `step_profile.md` and `step_profile.json` under `--output-dir` (git-ignored `reports/` by default). Times on a
+With the field compiled (`--compile True`, the method's default in CPU runs of 300+ steps) the field is one compiled
+region, reported as one stage; the warm-up (12 steps) holds every compile (step 10 is the first whose proposal networks
+run without gradients). It writes `step_profile.md` and `step_profile.json` under `--output-dir` (git-ignored `reports/` by default). Times on a
 machine that other processes share are inflated, most of all with several threads: the load average is reported.
 """
 
@@ -52,8 +54,9 @@ class ProfileStepConfig:
     """Dataset folder in the SS-NeRF format. Default: render the default scene into a temporary folder."""
     steps: int = 5
     """Profiled training steps (after the warm-up)."""
-    warmup: int = 5
-    """Untimed steps first (allocations, lazy initialisation, compilation)."""
+    warmup: int = 12
+    """Untimed steps first (allocations, lazy initialisation, every compile: step 10 is the first whose proposal
+    networks run without gradients)."""
     threads: int = 2
     """Torch threads for the step and for the matmul peak."""
     rays: int = 1024
