@@ -14,8 +14,9 @@ runs `--warmup` untimed steps, then profiles `--steps` steps with `torch.profile
 
 With the field compiled (`--compile True`, the method's default in CPU runs of 300+ steps) the field is one compiled
 region, reported as one stage; the warm-up (12 steps) holds every compile (step 10 is the first whose proposal networks
-run without gradients). It writes `step_profile.md` and `step_profile.json` under `--output-dir` (git-ignored `reports/` by default). Times on a
-machine that other processes share are inflated, most of all with several threads: the load average is reported.
+run without gradients). It writes `step_profile.md` and `step_profile.json` under `--output-dir` (git-ignored
+`reports/` by default). Times on a machine that other processes share are inflated, most of all with several threads:
+the load average is reported.
 """
 
 from __future__ import annotations
