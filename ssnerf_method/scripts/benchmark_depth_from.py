@@ -1,7 +1,7 @@
 """How close normals made by `ssnerf-label --depth-from` come to normals made from the true depth.
 
     python -m ssnerf_method.scripts.benchmark_depth_from [--output reports/depth_from] [--steps 1000] \
-        [--depth-from-scale 0.5]
+        [--depth-from-scale 0.25]
 
 1. Generates the benchmark's walkthrough scene (`BENCHMARK_SCENE`, seed 0) and a depth-less copy of it, `capture/`
    (images and poses only, as `ns-process-data` leaves a phone capture).
@@ -53,8 +53,8 @@ class BenchmarkDepthFromConfig:
     """Folder for the scene, the model, the labelled copies and the results (reused: the model is trained once)."""
     steps: int = 1000
     """Training steps of the RGB-only ssnerf-lite."""
-    depth_from_scale: float = 0.5
-    """`ssnerf-label --depth-from-scale`: resolution of the rendered depth."""
+    depth_from_scale: float = 0.25
+    """`ssnerf-label --depth-from-scale`: resolution of the rendered depth (its default)."""
     seed: int = 0
     """Scene seed."""
     width: Optional[int] = None
