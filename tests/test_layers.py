@@ -17,7 +17,8 @@ LAYERS: List[Set[str]] = [
     {"compat", "errors", "atomic", "labels"},  # label makers: numpy and OpenCV on images, nothing of ours above them
     {"properties"},  # the registry
     {"data", "metrics"},
-    {"scene", "fields", "rendering", "viewer"},
+    {"scene", "fields"},
+    {"rendering", "viewer"},  # sampling runs the fields (their compiled form while training)
     {"model"},
     {"pipelines"},
     {"evaluation", "export", "labelling"},  # ssnerf-label's engine: --depth-from renders with a trained model
