@@ -143,8 +143,8 @@ def export_dataset(config: ExportDatasetConfig) -> Path:
         held_out = [name for i, name in enumerate(files) if config.test_every and
                     i % config.test_every == config.test_every // 2]
         splits = {"train": [name for name in files if name not in held_out], "val": held_out, "test": held_out}
-        palette = (model.palette * 255).round().int().tolist()  # type: ignore[attr-defined]
-        metadata = dataset.metadata
+        # the named classes only (a model's spare class slots without a name are never predicted)
+        palette = (model.palette[: len(model.class_names)] * 255).round().int().tolist()  # type: ignore
         provenance = {
             "tool": "ssnerf-export-dataset", "model_config": str(config.load_config.resolve()), "step": step,
             "split": config.split, "between": config.between, "include_split_poses": config.include_split_poses,
@@ -153,7 +153,7 @@ def export_dataset(config: ExportDatasetConfig) -> Path:
         }
         writer.write_transforms(
             shared, splits, provenance,
-            semantic_classes=metadata.get("semantic_classes") if model.num_classes else None,  # type: ignore
+            semantic_classes=list(model.class_names) if model.num_classes else None,  # type: ignore
             semantic_colors=[tuple(colour) for colour in palette] if model.num_classes else None,  # type: ignore
             provenance_key="ssnerf_export",
         )

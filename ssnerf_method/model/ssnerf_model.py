@@ -167,6 +167,11 @@ class SSNeRFModelConfig(ModelConfig):
     decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
 
 
+UNNAMED_LOGIT = -1e4
+"""Rendered logit of a spare class slot without a name: it is never the most likely class (finite, so that a softmax
+stays defined)."""
+
+
 class SSNeRFModel(Model):
     """Scene-property synthesis with one shared radiance field."""
 
@@ -312,6 +317,10 @@ class SSNeRFModel(Model):
         outputs: Dict[str, Tensor | List] = {}
         for prefix, level in zip(self.level_prefixes, result.levels):
             outputs.update(self._render_level(level, context, prefix))
+            if self.class_spec is not None and len(self.class_names) < self.num_classes:
+                # spare class slots no class has been given yet are never predicted
+                key = prefix + self.class_spec.prediction_key
+                outputs[key] = outputs[key].masked_fill(self.unnamed_slots.to(outputs[key].device), UNNAMED_LOGIT)
         final = result.levels[-1]
         for spec in self.specs:
             if spec.prediction_key != spec.name:
@@ -341,6 +350,11 @@ class SSNeRFModel(Model):
         colours = outputs[output_name]
         colours = colours.expand(*colours.shape[:-1], 3) if colours.shape[-1] == 1 else colours[..., :3]
         return torch.cat([colours, outputs["accumulation"]], dim=-1)
+
+    @property
+    def unnamed_slots(self) -> Tensor:
+        """(num_classes,) mask of the spare class slots that have no name yet (`class_names` grows in the viewer)."""
+        return torch.arange(self.num_classes) >= len(self.class_names)
 
     @property
     def level_prefixes(self) -> List[str]:
