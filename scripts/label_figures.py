@@ -48,6 +48,7 @@ from browser_driver import (  # noqa: E402
     labelled_input_js,
     select_dropdown_option,
     viewport_box,
+    wait_for_painting,
     wait_until,
 )
 from test_viewer_browser import wait_for_viewport  # noqa: E402
@@ -113,6 +114,15 @@ def camera_seeing_most(scene: Path, server: ViewerServer) -> tuple:
     return best[0], (columns.min(), rows.min(), columns.max() + 1, rows.max() + 1), best[2].shape
 
 
+def opened(browser: Chromium, server: ViewerServer):
+    """The browser's page on the viewer, its control panel shown and the training cameras hidden."""
+    page = browser.page
+    browser.open(server.url)
+    page.wait_for(f"!!{labelled_input_js('Output type')}", 60, "the viewer's control panel did not appear")
+    click_button(page, "Hide Train Cams")
+    return page
+
+
 def shoot_semantics(page, server: ViewerServer, index: int) -> np.ndarray:
     """The viewport once it shows the full-resolution semantics render at training camera `index`."""
     client = server.wait_for_client(60)
@@ -157,10 +167,7 @@ def main() -> None:
 
     with ViewerServer(first, max_res=512) as server, Chromium(executable, args.work / "profile", 1200, 800,
                                                               timeout=60) as browser:
-        page = browser.page
-        browser.open(server.url)
-        page.wait_for(f"!!{labelled_input_js('Output type')}", 60, "the viewer's control panel did not appear")
-        click_button(page, "Hide Train Cams")
+        page = opened(browser, server)
         index, (u0, v0, u1, v1), (height, width) = camera_seeing_most(scene, server)
         before = shoot_semantics(page, server, index)
         box = viewport_box(page)
@@ -173,8 +180,7 @@ def main() -> None:
         select_dropdown_option(page, "Class", f"{server.pipeline.model.class_names.index(SKIPPED)}: {SKIPPED}",
                                timeout=TIMEOUT)
         select_dropdown_option(page, "Paint", BOX, timeout=TIMEOUT)
-        page.wait_for("document.querySelector('canvas[data-engine^=\"three.js\"]').style.cursor === 'pointer'",
-                      TIMEOUT, "the render never switched to painting")
+        wait_for_painting(page, TIMEOUT)
         margin_u, margin_v = 0.15 * (u1 - u0), 0.15 * (v1 - v0)
         page.drag(on_screen(u0 + margin_u, v0 + margin_v), on_screen(u1 - margin_u, v1 - margin_v))
         strokes = scene / STROKES_FILE
@@ -187,10 +193,7 @@ def main() -> None:
     resumed = train(scene, args.work / "outputs", args.resume_steps, load_dir=first.parent / "nerfstudio_models")
     with ViewerServer(resumed, max_res=512) as server, Chromium(executable, args.work / "profile2", 1200, 800,
                                                                 timeout=60) as browser:
-        page = browser.page
-        browser.open(server.url)
-        page.wait_for(f"!!{labelled_input_js('Output type')}", 60, "the viewer's control panel did not appear")
-        click_button(page, "Hide Train Cams")
+        page = opened(browser, server)
         after = shoot_semantics(page, server, index)
 
     views = [crop(shot, box) for shot in (before, after)]

@@ -404,6 +404,13 @@ def viewport_box(page: Page) -> Tuple[int, int, int, int]:
     return left, top, right, bottom
 
 
+def wait_for_painting(page: Page, timeout: float) -> None:
+    """Wait until the viewport takes the pointer for painting: viser shows a pointer cursor over the render once the
+    server has registered a scene pointer callback (the Label panel's "Paint")."""
+    page.wait_for("document.querySelector('canvas[data-engine^=\"three.js\"]').style.cursor === 'pointer'",
+                  timeout, "the render never switched to painting")
+
+
 def crop(image: np.ndarray, box: Tuple[int, int, int, int], margin: int = 0) -> np.ndarray:
     left, top, right, bottom = box
     return image[top + margin : bottom - margin, left + margin : right - margin]

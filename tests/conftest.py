@@ -71,6 +71,15 @@ def write_tiny_dataset(root: Path, num_frames: int = 6, seed: int = 0) -> Dict:
     return transforms
 
 
+def one_line_error(err: str, program: str, words) -> str:
+    """The one line a console script printed for bad input (no traceback), holding every one of `words`."""
+    assert "Traceback" not in err
+    lines = [line for line in err.splitlines() if line.startswith(f"{program}: ")]
+    assert len(lines) == 1, lines
+    assert all(word in lines[0] for word in words), (lines[0], words)
+    return lines[0]
+
+
 @pytest.fixture
 def tiny_dataset(tmp_path: Path) -> Path:
     root = tmp_path / "tiny"

@@ -25,7 +25,7 @@ from ssnerf_method.scripts.check import CheckConfig
 from ssnerf_method.scripts.check import main as check_main
 from ssnerf_method.scripts.label import main as label_main
 
-from conftest import CLASSES, HEIGHT, WIDTH, write_tiny_dataset
+from conftest import CLASSES, HEIGHT, WIDTH, one_line_error, write_tiny_dataset
 
 ONLY_SEMANTICS = dict(normals=False, shading=False, edges=False, keypoints=False)
 
@@ -318,11 +318,7 @@ def test_bad_annotations_one_line_nothing_written(case: str, data: Path, tmp_pat
     with pytest.raises(SystemExit) as exit_info:
         label.entrypoint()
     assert exit_info.value.code == 1
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = [line for line in err.splitlines() if line.startswith("ssnerf-label: ")]
-    assert len(lines) == 1, lines
-    assert all(word in lines[0] for word in words), (lines[0], words)
+    one_line_error(capsys.readouterr().err, "ssnerf-label", words)
     assert snapshot(data) == before
 
 

@@ -30,6 +30,8 @@ from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import build_room
 from ssnerf_method.scripts.label import main as label_main
 
+from conftest import one_line_error
+
 DEPTH_KEYS = ("depth_file_path", "normals_file_path", "shading_file_path")
 ONLY_NORMALS = dict(edges=False, keypoints=False, semantics=False, workers=1)
 
@@ -215,9 +217,5 @@ def test_bad_config_one_line_nothing_written(case: str, trained_scene, tmp_path:
     with pytest.raises(SystemExit) as exit_info:
         label.entrypoint()
     assert exit_info.value.code == 1
-    err = capsys.readouterr().err
-    assert "Traceback" not in err
-    lines = [line for line in err.splitlines() if line.startswith("ssnerf-label: ")]
-    assert len(lines) == 1, lines
-    assert all(word in lines[0] for word in words), (lines[0], words)
+    one_line_error(capsys.readouterr().err, "ssnerf-label", words)
     assert snapshot(data) == before

@@ -37,6 +37,7 @@ from browser_driver import (
     labelled_input_js,
     select_dropdown_option,
     viewport_box,
+    wait_for_painting,
     wait_until,
 )
 
@@ -87,8 +88,7 @@ def test_a_stroke_painted_in_the_browser_survives_a_killed_run(tmp_path: Path) -
             select_dropdown_option(page, "Class", f"{classes.index('wall')}: wall", timeout=TIMEOUT)
             select_dropdown_option(page, "Paint", BRUSH, timeout=TIMEOUT)
             # the server answers by putting the render in pointer mode (viser shows a pointer cursor over it)
-            page.wait_for("document.querySelector('canvas[data-engine^=\"three.js\"]').style.cursor === 'pointer'",
-                          TIMEOUT, "the render never switched to painting")
+            wait_for_painting(page, TIMEOUT)
             left, top, right, bottom = viewport_box(page)
             Image.fromarray(page.screenshot()).save(artifacts / "before_stroke.png")
             page.click_at((left + right) / 2, (top + bottom) / 2)
