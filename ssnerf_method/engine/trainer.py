@@ -47,6 +47,12 @@ class SSNeRFTrainer(Trainer):
             "scalers": self.grad_scaler.state_dict(),
         }
 
+    def train(self) -> None:
+        """nerfstudio's training loop, with the run's folder made first: every rank of a data-parallel run writes
+        `dataparser_transforms.json`, and nerfstudio's check-then-mkdir of its folder races between them."""
+        self.base_dir.mkdir(parents=True, exist_ok=True)
+        super().train()
+
     @check_main_thread
     def save_checkpoint(self, step: int) -> None:
         """Save `step`'s checkpoint whole, then (with `save_only_latest_checkpoint`) delete the others; first remove
