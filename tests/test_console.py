@@ -1,6 +1,7 @@
-"""A quiet console: our commands' `--help`, a short `ns-train`, and `ns-eval` and `ns-render` on a trained model show
-none of nerfstudio 1.1.5's known third-party deprecation warnings (`compat.KNOWN_WARNINGS`, installed at interpreter
-start by the package's `.pth` hook), and the warnings are silenced only where they come from."""
+"""A quiet console: our commands' `--help`, a short `ns-train`, a tiny `ssnerf-demo`, and `ns-eval` and `ns-render`
+on a trained model show none of nerfstudio 1.1.5's known third-party deprecation warnings (`compat.KNOWN_WARNINGS`,
+installed at interpreter start by the package's `.pth` hook), and the warnings are silenced only where they come
+from."""
 
 from __future__ import annotations
 
@@ -51,6 +52,21 @@ def test_short_ns_train_is_quiet(tmp_path: Path) -> None:
     assert result.returncode == 0, result.stderr[-3000:]
     assert not re.search(KNOWN_WARNINGS[2][1], result.stderr + result.stdout)
     assert not DEPRECATION.search(result.stderr + result.stdout), result.stderr  # e.g. the trainer's GradScaler
+
+
+def test_the_demo_is_quiet(tmp_path: Path) -> None:
+    """`make demo`'s command, in a tiny form: training, reloading, scoring and rendering print no deprecation warning
+    (without the filters it prints torch.jit's and torch.cuda.amp's FutureWarnings)."""
+    result = subprocess.run(
+        [BIN / "ssnerf-demo", "--output-dir", str(tmp_path / "demo"), "--method", "ssnerf-lite",
+         "--max-num-iterations", "5", "--width", "48", "--height", "36", "--num-frames", "10"],
+        capture_output=True, text=True, timeout=600, env={**os.environ, "OMP_NUM_THREADS": "1"},
+    )
+    output = result.stdout + result.stderr
+    assert result.returncode == 0, output[-3000:]
+    assert (tmp_path / "demo" / "metrics.json").is_file()
+    assert not DEPRECATION.search(output), output
+    assert not known_warning_in(output), output
 
 
 def test_only_those_warnings_are_silenced() -> None:
