@@ -5,8 +5,9 @@ from __future__ import annotations
 
 import copy
 import json
+import sys
 from pathlib import Path
-from typing import Callable, Dict, Tuple
+from typing import Callable, Dict, List, Optional, Tuple
 
 import numpy as np
 import pytest
@@ -78,6 +79,26 @@ def one_line_error(err: str, program: str, words) -> str:
     assert len(lines) == 1, lines
     assert all(word in lines[0] for word in words), (lines[0], words)
     return lines[0]
+
+
+def snapshot(root: Path) -> Dict[str, Optional[bytes]]:
+    """Every path below `root` with its bytes (None for a folder): equal before and after means nothing was written."""
+    return {str(path.relative_to(root)): path.read_bytes() if path.is_file() else None
+            for path in sorted(root.rglob("*"))}
+
+
+def ssnerf_label_refuses(data: Path, arguments: List[str], words, err_reader, monkeypatch) -> None:
+    """`ssnerf-label DATA ARGUMENTS` (in this process) exits 1 with one line holding `words`, and writes nothing.
+    `err_reader`: pytest's `capsys`."""
+    from ssnerf_method.scripts import label
+
+    before = snapshot(data)
+    monkeypatch.setattr(sys, "argv", ["ssnerf-label", str(data), "--workers", "1", *arguments])
+    with pytest.raises(SystemExit) as exit_info:
+        label.entrypoint()
+    assert exit_info.value.code == 1
+    one_line_error(err_reader.readouterr().err, "ssnerf-label", words)
+    assert snapshot(data) == before
 
 
 @pytest.fixture

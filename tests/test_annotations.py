@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
 from typing import Callable, Dict, List, Optional
 
@@ -25,7 +24,7 @@ from ssnerf_method.scripts.check import CheckConfig
 from ssnerf_method.scripts.check import main as check_main
 from ssnerf_method.scripts.label import main as label_main
 
-from conftest import CLASSES, HEIGHT, WIDTH, one_line_error, write_tiny_dataset
+from conftest import CLASSES, HEIGHT, WIDTH, ssnerf_label_refuses, write_tiny_dataset
 
 ONLY_SEMANTICS = dict(normals=False, shading=False, edges=False, keypoints=False)
 
@@ -300,26 +299,12 @@ BAD: Dict[str, tuple] = {
 }
 
 
-def snapshot(root: Path) -> Dict[str, Optional[bytes]]:
-    return {str(path.relative_to(root)): path.read_bytes() if path.is_file() else None
-            for path in sorted(root.rglob("*"))}
-
-
 @pytest.mark.parametrize("case", list(BAD))
 def test_bad_annotations_one_line_nothing_written(case: str, data: Path, tmp_path: Path, capsys,
                                                   monkeypatch) -> None:
-    from ssnerf_method.scripts import label
-
     make, words = BAD[case]
     (tmp_path / "annotations").mkdir()
-    arguments = make(data, tmp_path / "annotations")
-    before = snapshot(data)
-    monkeypatch.setattr(sys, "argv", ["ssnerf-label", str(data), "--workers", "1", *arguments])
-    with pytest.raises(SystemExit) as exit_info:
-        label.entrypoint()
-    assert exit_info.value.code == 1
-    one_line_error(capsys.readouterr().err, "ssnerf-label", words)
-    assert snapshot(data) == before
+    ssnerf_label_refuses(data, make(data, tmp_path / "annotations"), words, capsys, monkeypatch)
 
 
 def test_two_sources_and_ambiguous_names_are_refused(data: Path, tmp_path: Path, edit_transforms) -> None:

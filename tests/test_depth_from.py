@@ -8,9 +8,8 @@ from __future__ import annotations
 
 import json
 import shutil
-import sys
 from pathlib import Path
-from typing import Callable, Dict, List, Optional
+from typing import Callable, Dict, List
 
 import numpy as np
 import pytest
@@ -30,7 +29,7 @@ from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import build_room
 from ssnerf_method.scripts.label import main as label_main
 
-from conftest import one_line_error
+from conftest import ssnerf_label_refuses
 
 DEPTH_KEYS = ("depth_file_path", "normals_file_path", "shading_file_path")
 ONLY_NORMALS = dict(edges=False, keypoints=False, semantics=False, workers=1)
@@ -196,26 +195,12 @@ BAD: Dict[str, tuple] = {
 }
 
 
-def snapshot(root: Path) -> Dict[str, Optional[bytes]]:
-    return {str(path.relative_to(root)): path.read_bytes() if path.is_file() else None
-            for path in sorted(root.rglob("*"))}
-
-
 @pytest.mark.parametrize("case", list(BAD))
 def test_bad_config_one_line_nothing_written(case: str, trained_scene, tmp_path: Path, capsys, monkeypatch) -> None:
-    from ssnerf_method.scripts import label
-
     scene, config_path = trained_scene
     arguments, change, words = BAD[case]
     data = without_depth(scene, tmp_path / "data")
     if change is not None:
         change(data)
     (tmp_path / "configs").mkdir()
-    argv = arguments(config_path, tmp_path / "configs")
-    before = snapshot(data)
-    monkeypatch.setattr(sys, "argv", ["ssnerf-label", str(data), "--workers", "1", *argv])
-    with pytest.raises(SystemExit) as exit_info:
-        label.entrypoint()
-    assert exit_info.value.code == 1
-    one_line_error(capsys.readouterr().err, "ssnerf-label", words)
-    assert snapshot(data) == before
+    ssnerf_label_refuses(data, arguments(config_path, tmp_path / "configs"), words, capsys, monkeypatch)

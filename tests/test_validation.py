@@ -7,7 +7,7 @@ import json
 import subprocess
 import sys
 from pathlib import Path
-from typing import Callable, Dict, List, Optional
+from typing import Callable, Dict, List
 
 import numpy as np
 import pytest
@@ -16,7 +16,7 @@ from PIL import Image
 from ssnerf_method.data.validate import MAX_LISTED, DatasetFaults, validate_dataset
 from ssnerf_method.errors import UserError
 
-from conftest import HEIGHT, WIDTH, write_tiny_dataset
+from conftest import HEIGHT, WIDTH, snapshot, write_tiny_dataset
 
 FRAME = "frame_003.png"
 
@@ -88,11 +88,6 @@ FAULTS: Dict[str, tuple] = {
     "no transforms.json": (lambda root: (root / "transforms.json").unlink(), None, ["transforms.json", "missing"]),
     "wrong folder": (lambda root: None, "nope", ["nope"]),
 }
-
-
-def snapshot(root: Path) -> Dict[str, Optional[bytes]]:
-    return {str(path.relative_to(root)): path.read_bytes() if path.is_file() else None
-            for path in sorted(root.rglob("*"))}
 
 
 @pytest.fixture(params=list(FAULTS))
