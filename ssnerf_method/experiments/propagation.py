@@ -303,7 +303,7 @@ class PropagationStudy(StudyConfig):
 
         _, data = self.tables(results)
         rows = {row["row"]: row for row in data["propagation"]}
-        figure, axis = plt.subplots(figsize=(6.4, 4.0))
+        figure, axis = plt.subplots(figsize=(6.4, 5.0))
         styles = {SSNERF: "o-", SSNERF_TRAIN: "o:", HEURISTIC: "s--", NEAREST: "^-."}
         for family, marker_fill in (("frames", "full"), ("pixels", "none")):
             chosen = [setting for setting in self.settings() if getattr(setting, family) is not None]
@@ -319,7 +319,9 @@ class PropagationStudy(StudyConfig):
         axis.set_xscale("log")
         axis.set_xlabel("fraction of training pixels labelled")
         axis.set_ylabel("semantics mIoU")
-        axis.legend(fontsize=6, loc="lower right")
+        axis.set_ylim(0.0, 1.0)  # the dense line stays inside the frame
+        # below the axes, so that it covers no curve
+        axis.legend(fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
         figure.tight_layout()
         figure.savefig(path, dpi=150)
         plt.close(figure)
