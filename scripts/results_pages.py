@@ -96,16 +96,38 @@ def heading(key: str) -> str:
     return words[:1].upper() + words[1:]
 
 
+def is_grid(value: Any) -> bool:
+    """A table stored as a mapping: row name -> {column: scalar}."""
+    return (isinstance(value, dict) and bool(value) and all(
+        isinstance(row, dict) and row and not any(isinstance(cell, (dict, list)) for cell in row.values())
+        for row in value.values()))
+
+
+def grid_rows(grid: Dict[str, Dict[str, Any]]) -> List[Dict[str, Any]]:
+    return [{"row": name, **columns} for name, columns in grid.items()]
+
+
+def is_table_group(value: Any) -> bool:
+    """Tables under names (e.g. per scene): row lists, or mappings of row mappings."""
+    return isinstance(value, dict) and bool(value) and (any(map(is_rows, value.values()))
+                                                        or all(map(is_grid, value.values())))
+
+
 def render_tables(tables: Dict[str, Any], titles: Dict[str, str], level: int) -> List[str]:
-    """Every table of a report's JSON, in its order: row lists as tables, groups of them under subheadings, other
-    values as a list of settings first."""
+    """Every table of a report's JSON, in its order: row lists (or mappings of row mappings) as tables, groups of
+    them under subheadings, other values as a list of settings first."""
     settings = [f"- {key}: {number(value)}" for key, value in tables.items()
-                if not is_rows(value) and not (isinstance(value, dict) and any(map(is_rows, value.values())))]
+                if not is_rows(value) and not is_grid(value) and not is_table_group(value)]
     parts = ["Settings:", "\n".join(settings)] if settings else []
     for key, value in tables.items():
         if is_rows(value):
             parts += [f"{'#' * level} {heading(key)}", markdown_table(value, titles)]
-        elif isinstance(value, dict) and any(map(is_rows, value.values())):
+        elif is_grid(value):
+            parts += [f"{'#' * level} {heading(key)}", markdown_table(grid_rows(value), titles)]
+        elif is_table_group(value) and all(map(is_grid, value.values())):
+            for name, grid in value.items():
+                parts += [f"{'#' * level} {heading(key)}: {name}", markdown_table(grid_rows(grid), titles)]
+        elif is_table_group(value):
             parts += [f"{'#' * level} {heading(key)}", *render_tables(value, titles, level + 1)]
     return parts
 
@@ -152,7 +174,12 @@ class Entry:
                  f"- Method: `{report.get('method')}`, {report.get('steps')} steps per model"
                  + (f", learning rates ×0.1 after {number(drop)} of them" if drop is not None else "") + quick]
         if report.get("wall_clock_seconds") is not None:
-            lines.append(f"- Wall-clock time: {report['wall_clock_seconds'] / 60.0:.1f} min")
+            lines.append(f"- Wall-clock time of the command: {report['wall_clock_seconds'] / 60.0:.1f} min"
+                         " (runs it found finished are reused, not retrained)")
+        trained = [run.get("train_seconds") for scene in report.get("runs", {}).values() if isinstance(scene, dict)
+                   for run in scene.values() if isinstance(run, dict) and run.get("train_seconds") is not None]
+        if trained:
+            lines.append(f"- Training time of the {len(trained)} runs, added up: {sum(trained) / 60.0:.1f} min")
         scenes = list(report.get("results", {}))
         if scenes:
             lines.append("- Scenes: " + ", ".join(f"`{scene}`" for scene in scenes))

@@ -336,3 +336,13 @@ def test_the_site_builds_without_warnings_and_lists_every_property(tmp_path: Pat
     for page in ("getting-started", "own-data", "viewer", "method", "benchmark", "dataset-format", "troubleshooting",
                  "results/index", "development"):
         assert (tmp_path / f"{page}.html").is_file(), page
+
+
+def test_tables_stored_as_mappings_become_tables_not_settings() -> None:
+    """A study's per-scene results ({scene: {row: {column: value}}}) render as one table per scene."""
+    tables = {"per_scene": {"scene_a": {"1 frame": {"SS-NeRF": 0.25, "Heuristic": 0.5}, "all": {"SS-NeRF": 0.75}}},
+              "seed": 3}
+    text = "\n\n".join(results_pages.render_tables(tables, {}, 2))
+    assert "- seed: 3" in text and "{" not in text
+    assert "## Per scene: scene_a" in text
+    assert "| 1 frame | 0.2500 | 0.5000 |" in text and "| all | 0.7500 | – |" in text
