@@ -30,7 +30,8 @@ from ssnerf_method.scripts.benchmark_throughput import TrainingStep, _ssnerf_cas
 from test_rendering import tiny_model
 
 LITE = dict(sampling="proposal", num_proposal_samples=(6,), proposal_max_res=(16,), num_field_samples=5,
-            direction_encoding="sh", density_activation="trunc_exp", decoder_sharing="property", decoder_layers=2)
+            direction_encoding="sh", density_activation="trunc_exp", decoder_sharing="property", decoder_layers=2,
+            class_grid_max_res=32)
 """`ssnerf-lite`'s architecture at a tiny size (`tiny_model` shrinks the grid and the decoders)."""
 
 

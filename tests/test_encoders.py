@@ -1,4 +1,5 @@
-"""The gathered hash-grid lookup: nerfstudio's features bit for bit, its gradients, and where the model uses it."""
+"""The gathered hash-grid lookup: nerfstudio's features bit for bit, its gradients, and where the model uses it; and
+which decoders see the class grid (`class_grid_max_res`)."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ import torch
 from nerfstudio.field_components.encodings import HashEncoding
 
 from ssnerf_method.fields.encoders import GatheredHashEncoding, gather_hash_lookups
+from ssnerf_method.fields.ssnerf_field import SSNeRFField
 
 from test_rendering import tiny_model
 
@@ -57,3 +59,37 @@ def test_the_model_switches_every_torch_hash_grid(lookup: str, expected: type) -
     reference = tiny_model(sampling="proposal", num_proposal_samples=(4,), proposal_max_res=(16,),
                            num_field_samples=4, hash_lookup="nerfstudio")
     assert list(model.state_dict()) == list(reference.state_dict())  # checkpoints load either way
+
+
+@pytest.mark.parametrize("sharing", ["branch", "property", "rgb-apart"])
+def test_the_class_grid_reaches_the_class_decoders_only(sharing: str) -> None:
+    """The class grid (`class_grid_max_res`) is an input of the MLP that decodes semantics and of no other: semantics
+    send it gradients, RGB and the other properties neither read it nor change it (whatever MLPs they share)."""
+    torch.manual_seed(0)
+    model = tiny_model(sampling="proposal", num_proposal_samples=(4,), proposal_max_res=(16,), num_field_samples=4,
+                       decoder_sharing=sharing, class_grid_max_res=32)
+    field = next(module for module in model.modules() if isinstance(module, SSNeRFField))
+    grid = field.class_grid
+    assert isinstance(grid, GatheredHashEncoding) and grid.num_levels == 4
+    with torch.no_grad():
+        grid.hash_table.uniform_(-1.0, 1.0)
+    positions = torch.rand(64, 3) * 2.0 - 1.0
+    directions = torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
+    _, outputs = field.evaluate(positions, directions, None)
+    for name, values in outputs.items():
+        (gradient,) = torch.autograd.grad(values.sum(), grid.hash_table, retain_graph=True, allow_unused=True)
+        reaches = gradient is not None and bool(gradient.abs().max() > 0)
+        assert reaches == (name == "semantics"), name
+    with torch.no_grad():  # other class-grid features: semantics change, nothing else does
+        grid.hash_table.uniform_(-1.0, 1.0)
+    _, again = field.evaluate(positions, directions, None)
+    assert not torch.allclose(again["semantics"], outputs["semantics"])
+    assert all(torch.equal(again[name], outputs[name]) for name in outputs if name != "semantics")
+
+
+def test_without_classes_or_at_zero_there_is_no_class_grid_and_checkpoints_keep_their_names() -> None:
+    plain = tiny_model()
+    assert not [name for name in plain.state_dict() if "class_grid" in name]
+    without_classes = tiny_model(properties=("normals", "shading"), class_grid_max_res=32)
+    assert not [name for name in without_classes.state_dict() if "class_grid" in name]
+    assert list(tiny_model(class_grid_max_res=0).state_dict()) == list(plain.state_dict())

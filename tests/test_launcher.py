@@ -19,7 +19,7 @@ import pytest
 import torch
 
 from ssnerf_method.experiments import benchmark
-from ssnerf_method.experiments.benchmark import BenchmarkConfig, run
+from ssnerf_method.experiments.benchmark import BenchmarkConfig, generated_scenes, run
 from ssnerf_method.experiments.launcher import Job, exclusive, launch, ordered
 
 ray = pytest.importorskip("ray", reason="the cluster extra (pip install -e .[cluster]) is not installed")
@@ -82,13 +82,14 @@ def test_jobs_are_deduplicated_and_ordered_after_what_they_need(tmp_path: Path) 
 def test_ray_quick_benchmark_matches_the_local_one_and_a_rerun_trains_nothing(tmp_path: Path, monkeypatch) -> None:
     torch.set_num_threads(1)
     local, distributed = tmp_path / "local", tmp_path / "ray"
-    process = driver(distributed)
-    local_results = run(BenchmarkConfig(quick=True, output=local))
+    scenes = tuple(generated_scenes(BenchmarkConfig(quick=True, output=tmp_path))[:1])  # one scene: half the runs
+    process = driver(distributed, "--scenes", str(scenes[0]))
+    local_results = run(BenchmarkConfig(quick=True, output=local, scenes=scenes))
     text = finished(process)
-    assert "launcher ray: 20 of 20 runs to do" in text and "20 done, 0 running, 0 failed" in text
+    assert "launcher ray: 10 of 10 runs to do" in text and "10 done, 0 running, 0 failed" in text
 
     assert results_layout(distributed) == results_layout(local)
-    assert len(checkpoints(results_layout(local))) == 14  # 7 models on each of 2 scenes
+    assert len(checkpoints(results_layout(local))) == 7  # 7 models
     ours, theirs = (json.loads((folder / "tables.json").read_text()) for folder in (distributed, local))
     for table in ("table1", "table2_left"):
         assert [sorted(row) for row in ours[table]] == [sorted(row) for row in theirs[table]]
@@ -97,16 +98,16 @@ def test_ray_quick_benchmark_matches_the_local_one_and_a_rerun_trains_nothing(tm
     assert {scene: set(rows) for scene, rows in ours["results"].items()} == {
         scene: set(rows) for scene, rows in local_results.items()}
     report = (distributed / "report.md").read_text()
-    assert "Failed runs" not in report and report.count("| SS-NeRF (walkthrough_seed_") == 2
+    assert "Failed runs" not in report and report.count("| SS-NeRF (walkthrough_seed_") == 1
     logs = list((distributed / "runs").rglob("launcher.log"))
-    assert len(logs) == 14 and all("attempt 1 on" in log.read_text() for log in logs)
+    assert len(logs) == 7 and all("attempt 1 on" in log.read_text() for log in logs)
 
     def refuse(*args, **kwargs):
         raise AssertionError("a finished run was redone")
 
     monkeypatch.setattr(benchmark, "train_main", refuse)
     monkeypatch.setattr(ray, "init", refuse)  # nothing left to do: no Ray instance is even started
-    rerun = run(BenchmarkConfig(quick=True, output=distributed, launcher="ray"))
+    rerun = run(BenchmarkConfig(quick=True, output=distributed, launcher="ray", scenes=scenes))
     assert {scene: set(rows) for scene, rows in rerun.items()} == {scene: set(rows) for scene, rows in
                                                                     ours["results"].items()}
 
@@ -130,7 +131,8 @@ def kill_attempt(record: Path, attempt: int, process: subprocess.Popen, timeout:
 @pytest.mark.filterwarnings("ignore")
 def test_a_killed_task_is_retried_then_reported_failed_and_the_rerun_trains_only_it(tmp_path: Path) -> None:
     output = tmp_path / "ray"
-    arguments = ("--properties", "semantics", "--no-all-properties-model", "--retries", "1")
+    scene = generated_scenes(BenchmarkConfig(quick=True, output=output))[0]  # one scene: half the trainings
+    arguments = ("--scenes", str(scene), "--properties", "semantics", "--no-all-properties-model", "--retries", "1")
     victim = output / "runs" / "walkthrough_seed_0" / "ssnerf-semantics" / "ssnerf-lite" / "30-steps"
     process = driver(output, *arguments)
     kill_attempt(victim / "launcher.log.running", 1, process)  # retried: --retries 1
@@ -146,13 +148,13 @@ def test_a_killed_task_is_retried_then_reported_failed_and_the_rerun_trains_only
     assert "## Failed runs" in report and f"walkthrough_seed_0 / ssnerf-semantics: {record['error']}" in report
     assert str(victim / "launcher.log") in report
     others = sorted(set((output / "runs").rglob("metrics.json")))
-    assert len(others) == 3 and not (victim / "metrics.json").exists()  # the other three models are kept
+    assert len(others) == 1 and not (victim / "metrics.json").exists()  # the other model (the NeRF) is kept
     kept = {path: path.stat().st_mtime_ns for path in others}
     baselines = sorted((output / "runs").glob("walkthrough_seed_*/*-30-steps.json"))
-    assert len(baselines) == 6  # the three baselines of both scenes (they need only the NeRF)
+    assert len(baselines) == 3  # the scene's three baselines (they need only the NeRF)
 
     text = finished(driver(output, *arguments))
-    assert "1 of 10 runs to do" in text
+    assert "1 of 5 runs to do" in text
     assert (victim / "metrics.json").is_file() and not (victim / "launcher.log.failed.json").exists()
     assert {path: path.stat().st_mtime_ns for path in others} == kept  # finished runs were not retrained
     assert "Failed runs" not in (output / "report.md").read_text()

@@ -2,7 +2,8 @@
 
 Which decoder predicts which property comes from each `PropertySpec.branch` (the paper's Table 3 swaps them). The
 view-dependent decoder also sees the encoded view direction; the view-independent one optionally sees the encoded
-camera pose (the paper's surface-normal modelling).
+camera pose (the paper's surface-normal modelling). Optionally, the decoder MLPs of class-valued properties also see a
+coarse grid of their own (`class_grid`), through which sparse labels spread.
 """
 
 from __future__ import annotations
@@ -45,20 +46,30 @@ class BranchDecoder(nn.Module):
 
 class GroupedDecoders(nn.Module):
     """A decoder branch split into several MLPs on the same inputs, each giving a group of the branch's properties:
-    properties in different groups (RGB included) never compete for hidden units."""
+    properties in different groups (RGB included) never compete for hidden units. The groups named in `extended`
+    also see extra inputs (the class grid's features) after the branch's."""
 
     def __init__(
-        self, in_dim: int, widths: Dict[str, int], num_layers: int, groups: Dict[str, Dict[str, int]]
+        self, in_dim: int, widths: Dict[str, int], num_layers: int, groups: Dict[str, Dict[str, int]],
+        extended: Sequence[str] = (), extra_dim: int = 0,
     ) -> None:
         super().__init__()
         self.names = [name for heads in groups.values() for name in heads]
         """The branch's properties, as `BranchDecoder.names`."""
-        self.decoders = nn.ModuleDict(
-            {key: BranchDecoder(in_dim, widths[key], num_layers, heads) for key, heads in groups.items() if heads}
-        )
+        self.extended = [key for key, heads in groups.items() if key in extended and heads]
+        self.decoders = nn.ModuleDict({
+            key: BranchDecoder(in_dim + (extra_dim if key in self.extended else 0), widths[key], num_layers, heads)
+            for key, heads in groups.items() if heads
+        })
 
-    def forward(self, inputs: Float[Tensor, "*bs in_dim"]) -> Dict[str, Tensor]:
-        return {name: values for decoder in self.decoders.values() for name, values in decoder(inputs).items()}
+    def forward(
+        self, inputs: Float[Tensor, "*bs in_dim"], extra: Optional[Float[Tensor, "*bs extra_dim"]] = None
+    ) -> Dict[str, Tensor]:
+        outputs: Dict[str, Tensor] = {}
+        for key, decoder in self.decoders.items():
+            wide = extra is not None and key in self.extended
+            outputs.update(decoder(torch.cat([inputs, extra], dim=-1) if wide else inputs))  # type: ignore[list-item]
+        return outputs
 
 
 DecoderSharing = Literal["branch", "property", "rgb-apart"]
@@ -97,6 +108,10 @@ class SSNeRFField(Field):
         density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
         implementation: "tcnn" or "torch" for the spherical-harmonics encoding.
+        class_grid: an encoding of contracted positions (mapped to [0, 1]) whose features the decoder MLPs of
+            class-valued properties see beside e_x: a coarse grid, spatially smooth, through which a few labelled
+            pixels spread to the surfaces around them (e_x is sharp: alone, sparse labels stay where they are).
+            None: the paper's decoders.
     """
 
     def __init__(
@@ -112,10 +127,14 @@ class SSNeRFField(Field):
         density_activation: Literal["relu", "trunc_exp"] = "relu",
         density_noise: float = 0.0,
         implementation: Literal["tcnn", "torch"] = "torch",
+        class_grid: Optional[nn.Module] = None,
     ) -> None:
         super().__init__()
         self.specs = {spec.name: spec for spec in specs}
         self.encoder = encoder
+        classes = {spec.name for spec in specs if spec.kind.categorical}
+        self.class_grid = class_grid if classes else None
+        extra_dim = self.class_grid.get_out_dim() if self.class_grid is not None else 0  # type: ignore[operator]
         self.spatial_distortion = SceneContraction(order=float("inf"))
         self.density_activation = density_activation
         self.density_noise = density_noise
@@ -140,19 +159,37 @@ class SSNeRFField(Field):
             if not heads:
                 continue
             groups = decoder_groups(decoder_sharing, heads, rgb_name)
-            if groups is None:
+            apart = [name for name in heads if name in classes] if extra_dim else []
+            if groups is None and not apart:
                 self.decoders[branch] = BranchDecoder(in_dim, decoder_width, decoder_layers, heads)
                 continue
-            widths = {key: decoder_width if rgb_name in group else property_decoder_width or decoder_width
-                      for key, group in groups.items()}
-            self.decoders[branch] = GroupedDecoders(in_dim, widths, decoder_layers, groups)
+            groups = groups or {branch: heads}  # `branch`: one shared MLP, keyed by the branch
+            if apart:  # with a class grid, each class-valued property has an MLP of its own, the only one to see it
+                shared = {key: {name: channels for name, channels in group.items() if name not in apart}
+                          for key, group in groups.items()}
+                groups = {**shared, **{name: {name: heads[name]} for name in apart}}
+            widths = {key: decoder_width if rgb_name in group or key == branch  # RGB's, or `branch`'s shared MLP
+                      else property_decoder_width or decoder_width for key, group in groups.items()}
+            self.decoders[branch] = GroupedDecoders(in_dim, widths, decoder_layers, groups, apart, extra_dim)
 
     def density_at(
         self, positions: Float[Tensor, "*bs 3"]
     ) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
         """Density and the shared feature e_x at world positions (F_enc after the scene contraction)."""
-        raw_density, feature = self.encoder(self.spatial_distortion(positions))
+        raw_density, feature = self.encode(positions)
         return self.activate_density(raw_density), feature
+
+    def encode(
+        self, positions: Float[Tensor, "*bs 3"]
+    ) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
+        """F_enc's raw density and e_x at world positions; with a class grid, its features follow e_x in the same
+        tensor (nerfstudio's `Field` hands one density embedding from `get_density` to `get_outputs`)."""
+        contracted = self.spatial_distortion(positions)
+        raw_density, feature = self.encoder(contracted)
+        if self.class_grid is None:
+            return raw_density, feature
+        grid = self.class_grid(((contracted + 2.0) / 4.0).reshape(-1, 3))  # the contraction's [-2, 2] to [0, 1]
+        return raw_density, torch.cat([feature, grid.view(*feature.shape[:-1], -1).to(feature)], dim=-1)
 
     def activate_density(self, raw_density: Float[Tensor, "*bs 1"]) -> Float[Tensor, "*bs 1"]:
         """Density from F_enc's raw output: the training noise (NeRF's regulariser), then the activation."""
@@ -195,10 +232,14 @@ class SSNeRFField(Field):
                                    self.sample_pose(ray_samples, feature))
 
     def outputs_from_feature(self, feature: Tensor, directions: Tensor, pose: Optional[Tensor]) -> Dict[str, Tensor]:
-        """Each property's activated decoder output, by name."""
+        """Each property's activated decoder output, by name (`feature`: e_x, then the class grid's features if any)."""
+        grid: Optional[Tensor] = None
+        if self.class_grid is not None:
+            feature, grid = feature[..., :self.encoder.feature_dim], feature[..., self.encoder.feature_dim:]
         outputs: Dict[str, Tensor] = {}
         for branch, decoder in self.decoders.items():
-            raw = decoder(self.decoder_inputs(branch, feature, directions, pose))
+            inputs = self.decoder_inputs(branch, feature, directions, pose)
+            raw = decoder(inputs, grid) if isinstance(decoder, GroupedDecoders) else decoder(inputs)
             for name, values in raw.items():
                 outputs[name] = self.specs[name].kind.activation(values)
         return outputs
@@ -216,7 +257,7 @@ class SSNeRFField(Field):
         """F_enc's raw density and every property at samples given as tensors: the field as one function of tensors
         (what `compile_for_training` compiles). The density's noise and activation stay outside, so that the noise
         comes from torch's generator as in eager steps (inductor draws its own random numbers)."""
-        raw_density, feature = self.encoder(self.spatial_distortion(positions))
+        raw_density, feature = self.encode(positions)
         return raw_density, self.outputs_from_feature(feature, directions, pose)
 
     def compile_for_training(self) -> None:

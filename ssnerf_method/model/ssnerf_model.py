@@ -16,6 +16,7 @@ from torch import Tensor, nn
 from nerfstudio.cameras.cameras import Cameras
 from nerfstudio.cameras.rays import RayBundle
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
+from nerfstudio.field_components.encodings import HashEncoding
 from nerfstudio.field_components.spatial_distortions import SceneContraction
 from nerfstudio.fields.density_fields import HashMLPDensityField
 from nerfstudio.model_components.losses import DepthLossType, depth_loss, distortion_loss, interlevel_loss
@@ -93,6 +94,10 @@ class SSNeRFModelConfig(ModelConfig):
     """Hash grid: width of the MLP after the grid."""
     grid_feature_dim: int = 15
     """Hash grid: size of the feature e_x passed to the decoders."""
+    class_grid_max_res: int = 0
+    """If > 0, the decoders of class-valued properties (semantics) also see a coarse hash grid of their own (4 levels,
+    resolution 16 up to this one), spatially smooth, through which a few annotated frames, clicked pixels or viewer
+    strokes spread to the surfaces around them (`ssnerf-study propagation`). 0: none (the paper's decoders)."""
     direction_encoding: Literal["nerf", "sh"] = "nerf"
     """View-direction encoding of F_dec^v: 4-frequency sinusoids (paper) or spherical harmonics."""
     decoder_width: int = 128
@@ -250,7 +255,15 @@ class SSNeRFModel(Model):
             density_activation=self.config.density_activation,
             density_noise=self.config.density_noise,
             implementation=self.config.implementation,
+            class_grid=self._build_class_grid(),
         )
+
+    def _build_class_grid(self) -> Optional[HashEncoding]:
+        """The class grid of `class_grid_max_res` (None when 0, or when no class-valued property is trained)."""
+        if self.config.class_grid_max_res <= 0 or self.class_spec is None:
+            return None
+        return HashEncoding(num_levels=4, min_res=16, max_res=self.config.class_grid_max_res, log2_hashmap_size=17,
+                            features_per_level=2, implementation=self.config.implementation)
 
     def _build_sampling(self) -> RaySampling:
         if self.config.sampling == "hierarchical":
