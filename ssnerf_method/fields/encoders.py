@@ -17,6 +17,11 @@ from nerfstudio.field_components.encodings import HashEncoding, NeRFEncoding
 from nerfstudio.field_components.mlp import MLP, MLPWithHashEncoding
 
 
+def unit_cube(contracted: Float[Tensor, "*bs 3"]) -> Float[Tensor, "*bs 3"]:
+    """Positions contracted into [-2, 2] (`SceneContraction`) mapped to [0, 1], where hash grids expect them."""
+    return (contracted + 2.0) / 4.0
+
+
 class PositionEncoder(nn.Module):
     """Interface of F_enc: contracted positions in [-2, 2] -> raw density and a feature vector."""
 
@@ -71,8 +76,7 @@ class HashGridEncoder(PositionEncoder):
         self.feature_dim = feature_dim
 
     def forward(self, positions: Float[Tensor, "*bs 3"]) -> Tuple[Float[Tensor, "*bs 1"], Float[Tensor, "*bs feature"]]:
-        unit = (positions + 2.0) / 4.0  # the grid expects [0, 1]
-        out = self.mlp(unit.reshape(-1, 3)).view(*positions.shape[:-1], -1)
+        out = self.mlp(unit_cube(positions).reshape(-1, 3)).view(*positions.shape[:-1], -1)
         return torch.split(out, [1, self.feature_dim], dim=-1)  # type: ignore[return-value]
 
 

@@ -24,7 +24,7 @@ from nerfstudio.fields.base_field import Field, get_normalized_directions
 
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
 from ssnerf_method.fields.compiled import CompiledOrEager
-from ssnerf_method.fields.encoders import PositionEncoder
+from ssnerf_method.fields.encoders import PositionEncoder, unit_cube
 from ssnerf_method.properties import Branch, PropertySpec
 
 
@@ -188,7 +188,7 @@ class SSNeRFField(Field):
         raw_density, feature = self.encoder(contracted)
         if self.class_grid is None:
             return raw_density, feature
-        grid = self.class_grid(((contracted + 2.0) / 4.0).reshape(-1, 3))  # the contraction's [-2, 2] to [0, 1]
+        grid = self.class_grid(unit_cube(contracted).reshape(-1, 3))
         return raw_density, torch.cat([feature, grid.view(*feature.shape[:-1], -1).to(feature)], dim=-1)
 
     def activate_density(self, raw_density: Float[Tensor, "*bs 1"]) -> Float[Tensor, "*bs 1"]:
