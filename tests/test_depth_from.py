@@ -90,6 +90,7 @@ def test_depth_from_labels_every_frame_with_the_models_depth(trained_scene, tmp_
     record = meta["ssnerf_label"]["depth_from"]
     assert record["config"] == str(config_path.resolve())
     assert record["resolution_scale"] == LabelDatasetConfig(data=data).depth_from_scale
+    assert record["smoothing"] == LabelDatasetConfig(data=data).depth_from_smoothing > 0
     assert record["frames"] == [frame["file_path"] for frame in meta["frames"]]
     assert all("depth_file_path" not in frame for frame in meta["frames"])  # nothing claims sensor depth
 
@@ -139,9 +140,10 @@ def test_normals_from_rendered_depth_match_those_from_the_true_depth(trained_sce
     truth = shutil.copytree(scene, tmp_path / "truth")
     label_dataset(LabelDatasetConfig(data=truth, relabel=True, shading=False, **ONLY_NORMALS), load_transforms(truth))
     data = without_depth(scene, tmp_path / "data")
-    # (half the 40x30 images' resolution: the exact depth's normals need pixels more than the default's 10x8 give)
-    label_dataset(LabelDatasetConfig(data=data, depth_from=config_path, depth_from_scale=0.5, **ONLY_NORMALS),
-                  load_transforms(data))
+    # (half the 40x30 images' resolution: the exact depth's normals need pixels more than the default's 10x8 give;
+    # no smoothing, which is for a model's bumps and would round this exact depth's edges)
+    label_dataset(LabelDatasetConfig(data=data, depth_from=config_path, depth_from_scale=0.5, depth_from_smoothing=0.0,
+                                     **ONLY_NORMALS), load_transforms(data))
 
     frames = zip(json.loads((truth / "transforms.json").read_text())["frames"],
                  json.loads((data / "transforms.json").read_text())["frames"])
@@ -192,6 +194,8 @@ BAD: Dict[str, tuple] = {
                                ["config.yml", "another pose", "Train a model on this dataset"]),
     "scale out of range": (lambda config, folder: ["--depth-from", str(config), "--depth-from-scale", "2"], None,
                            ["--depth-from-scale 2", "(0, 1]"]),
+    "smoothing out of range": (lambda config, folder: ["--depth-from", str(config), "--depth-from-smoothing", "-1"],
+                               None, ["--depth-from-smoothing -1", "[0, 1)"]),
 }
 
 

@@ -1,6 +1,6 @@
 """The label makers on images and depth maps whose answer is known: Canny and keypoint heatmaps of a drawn image,
-normals of a tilted plane and a sphere against the analytic normal (also through a distorted nerfstudio camera), and
-Lambertian shading of known normals."""
+normals of a tilted plane and a sphere against the analytic normal (also through a distorted nerfstudio camera), the
+guided smoothing of bumpy normals, and Lambertian shading of known normals."""
 
 from __future__ import annotations
 
@@ -18,7 +18,10 @@ from ssnerf_method.labels import (
     normals_from_depth,
     normals_from_points,
 )
+from ssnerf_method.labels.encoding import decode_normals
 from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_label, keypoint_response_map
+from ssnerf_method.labels.makers import FrameSources, LabelOptions, NormalsFromDepth
+from ssnerf_method.labels.normals import smooth_normals
 from ssnerf_method.labels.surf import local_max_3x3x3
 
 WIDTH, HEIGHT, FOCAL = 96, 72, 80.0
@@ -178,6 +181,47 @@ def test_normals_through_a_distorted_nerfstudio_camera() -> None:
     assert _angle_deg(normals, normal).max() < 0.05
     pinhole = normals_from_depth(depth, FOCAL, FOCAL, CX, CY)
     assert np.nanmax(_angle_deg(pinhole, normal)) > 1.0  # ignoring the distortion would be visibly wrong
+
+
+def test_smoothing_flattens_texture_bumps_and_keeps_the_image_edges() -> None:
+    """Two walls meeting at column 48 (normals 60 degrees apart, a dark and a bright image side), each striped: the
+    normals tilt 15 degrees with every stripe, as a radiance field's depth copies texture. Smoothing over 8 pixels
+    removes the bumps, keeps each wall's normal up to the edge, and leaves unknown pixels unknown."""
+    left, right = np.array([0.5, 0.0, np.sqrt(0.75)]), np.array([-0.5, 0.0, np.sqrt(0.75)])
+    side = np.arange(WIDTH) < WIDTH // 2
+    stripe = (np.arange(WIDTH) // 3) % 2 == 0
+    image = np.where(side, 50, 200)[None, :, None] + np.where(stripe, 6, -6)[None, :, None]
+    image = np.broadcast_to(image, (HEIGHT, WIDTH, 3)).astype(np.uint8)
+    truth = np.where(side[None, :, None], left, right) * np.ones((HEIGHT, 1, 1))
+    tilt = np.deg2rad(np.where(stripe, 15.0, -15.0))[None, :, None]
+    bumpy = truth * np.cos(tilt) + np.array([0.0, 1.0, 0.0]) * np.sin(tilt)
+    bumpy[30:34, 10:14] = np.nan
+    smoothed = smooth_normals(bumpy, image, radius=8)
+    assert np.isnan(smoothed[30:34, 10:14]).all() and np.isfinite(np.delete(smoothed.reshape(-1, 3), [
+        row * WIDTH + col for row in range(30, 34) for col in range(10, 14)], axis=0)).all()
+    known = np.isfinite(smoothed).all(axis=-1)
+    assert np.median(_angle_deg(bumpy[known], truth[known])) > 14.0
+    assert np.median(_angle_deg(smoothed[known], truth[known])) < 4.0
+    edge = smoothed[:, WIDTH // 2 - 1 : WIDTH // 2 + 1]  # the last column of one wall, the first of the other
+    assert _angle_deg(edge, truth[:, WIDTH // 2 - 1 : WIDTH // 2 + 1]).max() < 10.0  # a plain blur: 23
+
+
+def test_normals_maker_smooths_only_when_the_frame_asks() -> None:
+    """A tilted plane whose depth is ribbed along the stripes of its image (a radiance field's texture copy): the
+    normals maker smooths them for a frame with `normals_smoothing` (rendered depth), not for one without (sensor)."""
+    rays = camera_ray_directions(HEIGHT, WIDTH, FOCAL, FOCAL, CX, CY)
+    depth, normal = tilted_plane(rays)
+    stripe = (np.arange(WIDTH) // 3) % 2 == 0
+    ribbed = depth * (1.0 + np.where(stripe, 0.004, -0.004))[None, :]
+    image = np.broadcast_to(np.where(stripe, 120, 140)[None, :, None], (HEIGHT, WIDTH, 3)).astype(np.uint8)
+
+    def errors(smoothing: int) -> np.ndarray:
+        frame = FrameSources(rgb=image, rays=lambda scale: rays, depth=lambda: ribbed, normals_smoothing=smoothing)
+        made = decode_normals(NormalsFromDepth().make(frame, LabelOptions())[..., :3] / 255.0)
+        return _angle_deg(made / np.linalg.norm(made, axis=-1, keepdims=True), normal)
+
+    assert np.median(errors(0)) > 10.0
+    assert np.median(errors(8)) < 3.0
 
 
 def test_lambertian_shading_of_known_normals() -> None:

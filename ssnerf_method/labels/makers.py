@@ -17,7 +17,7 @@ import tyro
 from ssnerf_method.labels.edges import canny_edges
 from ssnerf_method.labels.encoding import decode_normals, encode_normals, to_uint8
 from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
-from ssnerf_method.labels.normals import normals_from_points
+from ssnerf_method.labels.normals import normals_from_points, smooth_normals
 from ssnerf_method.labels.shading import shading_from_rays
 
 Source = Literal["rgb", "depth", "normals", "semantics"]
@@ -61,6 +61,9 @@ class FrameSources:
     """Whether the camera is a pinhole camera (normals from depth need straight rays through pixel centres)."""
     depth: Optional[Callable[[], np.ndarray]] = None
     """The frame's z-depth map (any unit; it may be another resolution of the same aspect), read when asked."""
+    normals_smoothing: int = 0
+    """Radius (pixels) over which normals made from `depth` are averaged where the image is uniform: set for depth
+    rendered by a radiance field, whose pixel-scale bumps are not geometry; 0 for sensor depth."""
     normals: Optional[np.ndarray] = None
     """(H, W, 3) camera-frame unit normals, NaN where unknown: given with the frame, or made by a maker."""
     semantics: Optional[Callable[[], np.ndarray]] = None
@@ -137,6 +140,8 @@ class NormalsFromDepth(LabelMaker):
         normals = normals_from_points(points, valid & (rays[..., 2] < 0))
         if depth.shape != (height, width):  # derived at the depth's resolution, then mapped to image pixels
             normals = cv2.resize(normals, (width, height), interpolation=cv2.INTER_NEAREST)
+        if frame.normals_smoothing > 0:
+            normals = smooth_normals(normals, frame.rgb, frame.normals_smoothing)
         if frame.normals is None:
             frame.normals = normals
         return with_alpha(to_uint8(encode_normals(normals)), np.isfinite(normals).all(axis=-1))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import cv2
 import numpy as np
 
 from ssnerf_method.labels.shading import camera_ray_directions
@@ -63,6 +64,33 @@ def normals_from_points(points: np.ndarray, valid: np.ndarray, min_angle_deg: fl
         normals = normals / norm
     normals[~valid | ~np.isfinite(norm[..., 0]) | (norm[..., 0] <= 0)] = np.nan
     return normals
+
+
+GUIDED_EPS = 0.01
+"""Guided filter's regulariser for `smooth_normals`, with the guide image in [0, 1]: colour differences well above
+its square root (0.1) keep normals apart; smaller ones (texture on one surface) are averaged over."""
+
+
+def smooth_normals(
+    normals: np.ndarray, guide: np.ndarray, radius: int, eps: float = GUIDED_EPS
+) -> np.ndarray:
+    """`normals` (H, W, 3; NaN where unknown) averaged over `radius` pixels where the image `guide` (H, W, 3 uint8) is
+    uniform, by OpenCV's guided filter (He et al.): the edges of the image stay the edges of the normals.
+
+    For normals from a radiance field's depth, whose pixel-scale bumps follow the texture and are not geometry. NaN
+    pixels take no part and stay NaN; the result is renormalised.
+    """
+    unknown = ~np.isfinite(normals).all(axis=-1)
+    image = guide.astype(np.float32) / 255.0
+    weight = (~unknown).astype(np.float32)
+    known_normals = np.where(unknown[..., None], 0.0, normals).astype(np.float32)
+    summed = cv2.ximgproc.guidedFilter(image, known_normals, radius, eps)
+    total = cv2.ximgproc.guidedFilter(image, weight, radius, eps)
+    smoothed = summed.astype(np.float64) / np.maximum(total.astype(np.float64), 1e-3)[..., None]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        smoothed /= np.linalg.norm(smoothed, axis=-1, keepdims=True)
+    smoothed[unknown | ~np.isfinite(smoothed).all(axis=-1)] = np.nan
+    return smoothed
 
 
 def normals_from_depth(

@@ -1,7 +1,7 @@
 """How close normals made by `ssnerf-label --depth-from` come to normals made from the true depth.
 
     python -m ssnerf_method.scripts.benchmark_depth_from [--output reports/depth_from] [--steps 1000] \
-        [--depth-from-scale 0.25]
+        [--depth-from-scale 0.25] [--depth-from-smoothing 0.1]
 
 1. Generates the benchmark's walkthrough scene (`BENCHMARK_SCENE`, seed 0) and a depth-less copy of it, `capture/`
    (images and poses only, as `ns-process-data` leaves a phone capture).
@@ -55,6 +55,9 @@ class BenchmarkDepthFromConfig:
     """Training steps of the RGB-only ssnerf-lite."""
     depth_from_scale: float = 0.25
     """`ssnerf-label --depth-from-scale`: resolution of the rendered depth (its default)."""
+    depth_from_smoothing: float = 0.1
+    """`ssnerf-label --depth-from-smoothing`: guided-filter radius over the normals, as a fraction of the image's
+    shorter side (its default; 0 = none)."""
     seed: int = 0
     """Scene seed."""
     width: Optional[int] = None
@@ -155,7 +158,8 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
     truth = images_only(scene, output / "truth", keep_depth=True)
     rendered = images_only(capture, output / "rendered", keep_depth=False)
     truth_seconds = label(truth, workers=2)
-    rendered_seconds = label(rendered, workers=2, depth_from=run["config"], depth_from_scale=config.depth_from_scale)
+    rendered_seconds = label(rendered, workers=2, depth_from=run["config"], depth_from_scale=config.depth_from_scale,
+                             depth_from_smoothing=config.depth_from_smoothing)
 
     truth_frames = json.loads((truth / "transforms.json").read_text())["frames"]
     meta = json.loads((rendered / "transforms.json").read_text())
@@ -182,6 +186,7 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
         "model": {"method": METHOD, "properties": [], "steps": config.steps, "config": str(run["config"]),
                   "train_seconds": run["train_seconds"]},
         "depth_from_scale": config.depth_from_scale,
+        "depth_from_smoothing": config.depth_from_smoothing,
         "label_seconds": {"true_depth": truth_seconds, "depth_from": rendered_seconds},
         "angle": {split: summary(values) for split, values in angles.items()},
         "constant_depth_angle": summary(constant),
@@ -189,7 +194,8 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
     }
     write_json_atomic(output / "depth_from.json", result)
     CONSOLE.print(f"Normals from --depth-from ({config.steps}-step RGB-only {METHOD}, depth at "
-                  f"{config.depth_from_scale:g}x) against normals from the true depth, over pixels labelled in both:")
+                  f"{config.depth_from_scale:g}x, smoothing {config.depth_from_smoothing:g}) against normals from the "
+                  "true depth, over pixels labelled in both:")
     for split, values in result["angle"].items():
         CONSOLE.print(f"  {split:5s} frames: median {values['median_deg']:.2f} deg, mean {values['mean_deg']:.2f} deg "
                       f"({values['pixels']} pixels)")
