@@ -36,7 +36,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.io import write_json_atomic
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.experiments.benchmark import BENCHMARK_SCENE
-from ssnerf_method.labelling.label_dataset import LabelDatasetConfig, label_dataset
+from ssnerf_method.labelling.label_dataset import LabelDatasetBase, LabelDatasetConfig, label_dataset
 from ssnerf_method.labels.encoding import decode_normals
 from ssnerf_method.method_configs import short_run
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
@@ -53,11 +53,11 @@ class BenchmarkDepthFromConfig:
     """Folder for the scene, the model, the labelled copies and the results (reused: the model is trained once)."""
     steps: int = 1000
     """Training steps of the RGB-only ssnerf-lite."""
-    depth_from_scale: float = 0.25
-    """`ssnerf-label --depth-from-scale`: resolution of the rendered depth (its default)."""
-    depth_from_smoothing: float = 0.1
+    depth_from_scale: float = LabelDatasetBase.depth_from_scale
+    """`ssnerf-label --depth-from-scale`: resolution of the rendered depth (default: ssnerf-label's)."""
+    depth_from_smoothing: float = LabelDatasetBase.depth_from_smoothing
     """`ssnerf-label --depth-from-smoothing`: guided-filter radius over the normals, as a fraction of the image's
-    shorter side (its default; 0 = none)."""
+    shorter side (default: ssnerf-label's; 0 = none)."""
     seed: int = 0
     """Scene seed."""
     width: Optional[int] = None
