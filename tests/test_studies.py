@@ -18,6 +18,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 from ssnerf_method.experiments import benchmark, sparsity
 from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
+from ssnerf_method.experiments.propagation import CEILING, PropagationStudy
 from ssnerf_method.experiments.report import BASELINE_ROWS
 from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
@@ -216,8 +217,49 @@ def test_quick_sparsity_scores_each_method_against_the_number_of_views(tmp_path:
     assert figure.std() > 10
 
 
+@pytest.mark.filterwarnings("ignore")
+def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trained_scene, tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    scene, _ = trained_scene
+    before = (scene / "transforms.json").read_bytes()
+    output = tmp_path / "propagation"
+    study = PropagationStudy(quick=True, output=output, scenes=(scene,), frames=(1,), pixels=(1,))
+    results = study.run()
+    assert (scene / "transforms.json").read_bytes() == before  # the scene itself is not touched
+    assert set(results[scene.name]) == {"1 frame", "all frames", "1 px/class/frame"}
+    assert_planned(study, output, 0.0)
+
+    copy = json.loads((output / "propagation" / f"{scene.name}-1frames" / "transforms.json").read_text())
+    chosen = {str(Path(name).resolve()) for name in copy["ssnerf_propagation"]["labelled_frames"]}
+    test = {str((scene / name).resolve()) for name in copy["test_filenames"]}
+    labelled = [frame for frame in copy["frames"] if "semantics_file_path" in frame]
+    assert len(chosen) == 1 and {frame["file_path"] for frame in labelled} == chosen | test
+
+    def classes(frames) -> set:
+        return {int(value) for frame in frames for value in np.unique(np.asarray(Image.open(
+            frame["semantics_file_path"])))} - {255}
+    shown = classes(frame for frame in labelled if frame["file_path"] in chosen)
+    tested = classes(frame for frame in labelled if frame["file_path"] in test)
+    assert shown and tested - shown  # this scene's single labelled frame misses a test class
+    sparse = json.loads((output / "propagation" / f"{scene.name}-1pixels" / "transforms.json").read_text())
+    for frame in sparse["frames"]:
+        if frame["file_path"] not in test and "semantics_file_path" in frame:
+            _, counts = np.unique(np.asarray(Image.open(frame["semantics_file_path"])), return_counts=True)
+            assert counts[:-1].max() == 1  # one pixel per class, the rest unlabelled (255, sorted last)
+
+    rows = {row["row"]: row for row in json.loads((output / "study_propagation.json").read_text())["tables"][
+        "propagation"]}
+    assert rows["1 frame"][CEILING] == pytest.approx(len(tested & shown) / len(tested))
+    assert rows["all frames"][CEILING] == 1.0 and rows["all frames"]["SS-NeRF / all frames"] == 1.0
+    assert rows["all frames"]["labelled pixels"] == 1.0 > rows["1 frame"]["labelled pixels"] > 0
+    for row in rows.values():
+        assert all(0.0 <= row[method] <= 1.0 for method in ("SS-NeRF", "Heuristic (labelled frames)"))
+    assert CEILING in (output / "study_propagation.md").read_text()
+    assert np.asarray(Image.open(output / "figure_propagation.png")).std() > 10
+
+
 @pytest.mark.parametrize("study", [BranchStudy, RGBStudy, MultiTaskStudy, TransferStudy, AugmentationStudy,
-                                   AutoLabelStudy, SparsityStudy])
+                                   AutoLabelStudy, SparsityStudy, PropagationStudy])
 def test_a_study_hands_its_launcher_flags_to_the_runs(study, tmp_path: Path) -> None:
     # `ssnerf-study ... --launcher ray` once trained everything locally, one run after another: the flags were dropped
     options = study(output=tmp_path, steps=7, launcher="ray", ray_address="ray://head:10001", cpus_per_run=2.0,

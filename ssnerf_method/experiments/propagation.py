@@ -12,8 +12,9 @@ Each model is scored on the test views (mIoU, as `ns-eval` computes it) and on t
 label (evenly chosen, at most `--train-views-scored` of them; all training views for the pixel settings, whose
 pixels are nearly all unlabelled), against the frames' true labels. Beside it, two baselines made from the same labels:
 the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the model's
-rendered depth) and the nearest labelled frame copied. Writes `study_propagation.md` / `.json` and
-`figure_propagation.png` (mIoU against labelling effort, a curve per method).
+rendered depth) and the nearest labelled frame copied. Each row also gives the highest test mIoU any method could
+reach from its labels (`class_coverage`): a class that is in the test views but on no labelled pixel scores 0. Writes
+`study_propagation.md` / `.json` and `figure_propagation.png` (mIoU against labelling effort, a curve per method).
 
 The copies are `transforms.json` files under `OUTPUT/propagation/` that list every frame of the scene (so nerfstudio
 orients and scales the poses exactly as for the full scene) with absolute paths into it; a pixel setting's sparse
@@ -61,6 +62,8 @@ METHODS = (SSNERF, SSNERF_TRAIN, HEURISTIC, NEAREST)
 """The study's columns: SS-NeRF on the test views and on the unlabelled training views, then the two baselines (on
 the test views)."""
 ALL_FRAMES = "all frames"
+CEILING = "mIoU ceiling (test classes labelled)"
+"""Column of the highest test mIoU the labels allow (`class_coverage`)."""
 
 
 @dataclass(frozen=True)
@@ -102,6 +105,24 @@ def sparse_pixels(label: np.ndarray, count: int, rng: np.random.Generator) -> np
         chosen = rng.choice(pixels, size=min(count, len(pixels)), replace=False)
         out[chosen] = class_id
     return kept
+
+
+def class_coverage(scene: Path) -> Dict[str, Any]:
+    """Which of the test views' classes the training frames' labels show, and the mIoU ceiling that makes (mIoU
+    averages over the test views' classes: one that no labelled pixel shows cannot be predicted and scores 0, any
+    other at best 1). Read from the label files of `scene` (a propagation copy or the scene itself)."""
+    key = class_property().file_key
+    train, test = (set(paths) for paths in split_images(scene))
+    shown: set = set()
+    tested: set = set()
+    for frame in json.loads((scene / "transforms.json").read_text())["frames"]:
+        image = (scene / frame["file_path"]).resolve()
+        if key not in frame or image not in train | test:
+            continue
+        classes = {int(value) for value in np.unique(np.asarray(Image.open(scene / frame[key])))} - {SEMANTIC_IGNORE}
+        (tested if image in test else shown).update(classes)
+    return {"test_classes": len(tested), "test_classes_labelled": len(tested & shown),
+            "miou_ceiling": len(tested & shown) / len(tested) if tested else None}
 
 
 def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, seed: int = 0) -> Dict[str, Any]:
@@ -221,8 +242,8 @@ class PropagationStudy(StudyConfig):
         if "failed" in metrics:
             return metrics
         cache = bench.folder / f"propagation-{bench.config.method}-{bench.tag}.json"
-        if cache.is_file():
-            return {**json.loads(cache.read_text()), **self._record(metrics, bench)}
+        if cache.is_file():  # (the coverage is read afresh: caches written before it was reported lack it)
+            return {**json.loads(cache.read_text()), **class_coverage(bench.scene), **self._record(metrics, bench)}
         spec = class_property()
         key = spec.metric_prefix + "miou"
         pipeline = bench.load(run.name)
@@ -252,7 +273,7 @@ class PropagationStudy(StudyConfig):
         scores.update(labelled_frames=len(labelled), training_frames=len(train), train_views_scored=len(scored),
                       labelled_pixel_fraction=propagation.get("labelled_pixel_fraction", 1.0))
         write_text_atomic(cache, json.dumps(scores, indent=2))
-        return {**scores, **self._record(metrics, bench)}
+        return {**scores, **class_coverage(bench.scene), **self._record(metrics, bench)}
 
     @staticmethod
     def _record(metrics: Dict[str, Any], bench: SceneBenchmark) -> Dict[str, Any]:
@@ -274,7 +295,7 @@ class PropagationStudy(StudyConfig):
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
         """Rows: the settings; columns: each method's mIoU (average over scenes), the share of the dense model's
-        mIoU, and the fraction of training pixels labelled."""
+        mIoU, the mIoU ceiling of the labels (`class_coverage`) and the fraction of training pixels labelled."""
         rows = []
         for setting in self.settings():
             runs = [scenes.get(setting.name, {}) for scenes in results.values()]
@@ -283,14 +304,17 @@ class PropagationStudy(StudyConfig):
                 row[method] = average([run.get(method) for run in runs])
             dense = average([scenes.get(ALL_FRAMES, {}).get(SSNERF) for scenes in results.values()])
             row["SS-NeRF / all frames"] = None if row[SSNERF] is None or not dense else row[SSNERF] / dense
+            row[CEILING] = average([run.get("miou_ceiling") for run in runs])
             row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
             rows.append(row)
-        titles = [*METHODS, "SS-NeRF / all frames", "labelled pixels (fraction)"]
-        columns = [*METHODS, "SS-NeRF / all frames", "labelled pixels"]
+        titles = [*METHODS, "SS-NeRF / all frames", CEILING, "labelled pixels (fraction)"]
+        columns = [*METHODS, "SS-NeRF / all frames", CEILING, "labelled pixels"]
         per_scene = {scene: {name: {method: runs[name].get(method) for method in METHODS} for name in runs}
                      for scene, runs in results.items()}
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
-                + "\n\nFigure: `figure_propagation.png`.")
+                + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
+                "mIoU any method can reach from these labels (a class no label shows scores 0).\n\n"
+                "Figure: `figure_propagation.png`.")
         return text, {"propagation": rows, "per_scene": per_scene}
 
     def figure(self, results: Results, path: Path) -> Path:
