@@ -69,6 +69,22 @@ def baseline(views: PlaneViews, num_source_views: int) -> HeuristicBaseline:
                              config=HeuristicBaselineConfig(num_source_views=num_source_views))
 
 
+def test_a_camera_sees_the_points_of_its_own_depth_and_not_those_behind_them_or_outside() -> None:
+    """`PinholeView.sees`, which the propagation study counts test pixels a labelled frame sees with: the points a
+    camera's own depth map unprojects to are seen, the same rays a fifth further on (hidden behind that surface) are
+    not, and neither is a point behind the camera or beside its image."""
+    view = PinholeView(FOCAL, FOCAL, SIZE / 2, SIZE / 2, SIZE, SIZE, pose(np.eye(3), [0.3, -0.2, 1.0]))
+    depth = np.full((SIZE, SIZE), DEPTH)
+    depth[:, : SIZE // 2] = DEPTH / 2  # a nearer half
+    points, pixels = view.unproject(depth)
+    assert len(points) == SIZE * SIZE and np.array_equal(pixels, np.arange(SIZE * SIZE))
+    assert view.sees(points, depth).all()
+    hidden = view.centre + (points - view.centre) * 1.2
+    assert not view.sees(hidden, depth).any()
+    beside = view.centre + np.array([[0.0, 0.0, 2.0], [5.0, 0.0, -DEPTH]])  # behind the camera; far off the image side
+    assert not view.sees(beside, depth).any()
+
+
 def test_sideways_step_shifts_labels_by_the_disparity() -> None:
     """Moving 0.3 sideways in front of a plane 2 away with focal 20 shifts the image by exactly 3 pixels."""
     views = PlaneViews([pose(np.eye(3), [0.0, 0.0, 0.0])])

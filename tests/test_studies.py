@@ -18,7 +18,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 from ssnerf_method.experiments import benchmark, sparsity
 from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
-from ssnerf_method.experiments.propagation import CEILING, PropagationStudy
+from ssnerf_method.experiments.propagation import CEILING, SEEN, PropagationStudy
 from ssnerf_method.experiments.report import BASELINE_ROWS
 from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
@@ -252,6 +252,8 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
     assert rows["1 frame"][CEILING] == pytest.approx(len(tested & shown) / len(tested))
     assert rows["all frames"][CEILING] == 1.0 and rows["all frames"]["SS-NeRF / all frames"] == 1.0
     assert rows["all frames"]["labelled pixels"] == 1.0 > rows["1 frame"]["labelled pixels"] > 0
+    # the scene has depth maps: every frame together sees more of the test views than one does, pixels are not frames
+    assert 1.0 >= rows["all frames"][SEEN] > rows["1 frame"][SEEN] >= 0 and rows["1 px/class/frame"][SEEN] is None
     for row in rows.values():
         assert all(0.0 <= row[method] <= 1.0 for method in ("SS-NeRF", "Heuristic (labelled frames)"))
     assert CEILING in (output / "study_propagation.md").read_text()

@@ -58,6 +58,37 @@ class PinholeView:
     def centre(self) -> np.ndarray:
         return self.camera_to_world[:, 3]
 
+    def unproject(self, depth: Float[np.ndarray, "h w"]) -> Tuple[Float[np.ndarray, "n 3"], np.ndarray]:
+        """World points of the pixels with a depth (finite, > 0), and their flat pixel indices."""
+        rows, cols = np.mgrid[0 : self.height, 0 : self.width]
+        valid = np.isfinite(depth) & (depth > 0)
+        z = depth[valid]
+        x = (cols[valid] + 0.5 - self.cx) / self.fx * z
+        y = -(rows[valid] + 0.5 - self.cy) / self.fy * z
+        return np.stack([x, y, -z], axis=-1) @ self.rotation.T + self.centre, np.flatnonzero(valid.reshape(-1))
+
+    def project(self, points: Float[np.ndarray, "n 3"]) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Pixel column and row containing each world point, its z-depth in this camera, and whether it lands
+        inside the image in front of the camera."""
+        camera = (points - self.centre) @ self.rotation
+        z = -camera[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            column = np.floor(self.fx * camera[:, 0] / z + self.cx)
+            row = np.floor(-self.fy * camera[:, 1] / z + self.cy)
+        inside = (z > 1e-9) & (column >= 0) & (column < self.width) & (row >= 0) & (row < self.height)
+        return column, row, z, inside
+
+    def sees(
+        self, points: Float[np.ndarray, "n 3"], depth: Float[np.ndarray, "h w"], tolerance: float = 0.02
+    ) -> np.ndarray:
+        """Whether this camera sees each world point: inside the image, and its depth there within `tolerance`
+        (relative) of the point's (not hidden behind a nearer surface)."""
+        column, row, z, inside = self.project(points)
+        seen = np.zeros(len(points), dtype=bool)
+        there = depth[row[inside].astype(np.int64), column[inside].astype(np.int64)]
+        seen[inside] = np.abs(there - z[inside]) <= tolerance * z[inside]
+        return seen
+
 
 def pose_distance(a: PinholeView, b: PinholeView, angle_weight: float = ANGLE_WEIGHT) -> float:
     """Distance between camera centres (scene units) plus `angle_weight` x the angle between viewing directions
@@ -93,22 +124,10 @@ def splat(
     Returns, for every target pixel that received a point, its flat index, the flat index of the source pixel that
     won it (the nearest to the target camera) and that point's z-depth in the target camera.
     """
-    rows, cols = np.mgrid[0 : source.height, 0 : source.width]
-    valid = np.isfinite(depth) & (depth > 0)
-    z = depth[valid]
-    x = (cols[valid] + 0.5 - source.cx) / source.fx * z
-    y = -(rows[valid] + 0.5 - source.cy) / source.fy * z
-    points_camera = np.stack([x, y, -z], axis=-1)
-    points_world = points_camera @ source.rotation.T + source.centre
-    points_target = (points_world - target.centre) @ target.rotation
-    z_target = -points_target[:, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        u = target.fx * points_target[:, 0] / z_target + target.cx
-        v = -target.fy * points_target[:, 1] / z_target + target.cy
-    column, row = np.floor(u), np.floor(v)
-    inside = (z_target > 1e-9) & (column >= 0) & (column < target.width) & (row >= 0) & (row < target.height)
+    points, pixels = source.unproject(depth)
+    column, row, z_target, inside = target.project(points)
     target_index = (row[inside] * target.width + column[inside]).astype(np.int64)
-    source_index = np.flatnonzero(valid.reshape(-1))[inside]
+    source_index = pixels[inside]
     z_kept = z_target[inside]
     order = np.lexsort((z_kept, target_index))  # by target pixel, nearest first
     target_index, source_index, z_kept = target_index[order], source_index[order], z_kept[order]

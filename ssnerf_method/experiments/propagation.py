@@ -13,7 +13,8 @@ label (evenly chosen, at most `--train-views-scored` of them; all training views
 pixels are nearly all unlabelled), against the frames' true labels. Beside it, two baselines made from the same labels:
 the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the model's
 rendered depth) and the nearest labelled frame copied. Each row also gives the highest test mIoU any method could
-reach from its labels (`class_coverage`): a class that is in the test views but on no labelled pixel scores 0. Writes
+reach from its labels (`class_coverage`): a class that is in the test views but on no labelled pixel scores 0; and,
+where the scene has depth maps, the share of test pixels whose surface a labelled frame sees (`seen_by_frames`). Writes
 `study_propagation.md` / `.json` and `figure_propagation.png` (mIoU against labelling effort, a curve per method).
 
 The copies are `transforms.json` files under `OUTPUT/propagation/` that list every frame of the scene (so nerfstudio
@@ -40,7 +41,7 @@ from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder
-from ssnerf_method.evaluation.heuristic import HeuristicBaseline, nearest_view_copy
+from ssnerf_method.evaluation.heuristic import HeuristicBaseline, PinholeView, dataset_depth, nearest_view_copy
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.experiments.benchmark import (
     BenchmarkConfig,
@@ -64,6 +65,8 @@ the test views)."""
 ALL_FRAMES = "all frames"
 CEILING = "mIoU ceiling (test classes labelled)"
 """Column of the highest test mIoU the labels allow (`class_coverage`)."""
+SEEN = "test pixels a labelled frame sees"
+"""Column of `seen_by_frames` (frame settings only)."""
 
 
 @dataclass(frozen=True)
@@ -123,6 +126,25 @@ def class_coverage(scene: Path) -> Dict[str, Any]:
         (tested if image in test else shown).update(classes)
     return {"test_classes": len(tested), "test_classes_labelled": len(tested & shown),
             "miou_ceiling": len(tested & shown) / len(tested) if tested else None}
+
+
+def seen_by_frames(train: SSNeRFDataset, test: SSNeRFDataset, frames: List[int]) -> Optional[float]:
+    """The share of the test views' pixels (those with depth) whose surface point one of the training views `frames`
+    sees (`PinholeView.sees`, with the dataset's depth maps); None without depth maps. A frame's labels reach what
+    it sees; the rest a method has to guess (e.g. by extending a wall's class)."""
+    if train.depth_files is None or test.depth_files is None or not frames:
+        return None
+    scale = train.metadata["dataparser_scale"]
+    train_depth, test_depth = dataset_depth(train, scale), dataset_depth(test, scale)
+    sources = [(PinholeView.from_cameras(train.cameras, index), train_depth(index)) for index in frames]
+    seen = total = 0
+    for index in range(len(test)):
+        points, _ = PinholeView.from_cameras(test.cameras, index).unproject(test_depth(index))
+        hit = np.zeros(len(points), dtype=bool)
+        for view, depth in sources:
+            hit |= view.sees(points, depth)
+        seen, total = seen + int(hit.sum()), total + len(points)
+    return seen / total if total else None
 
 
 def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, seed: int = 0) -> Dict[str, Any]:
@@ -271,7 +293,9 @@ class PropagationStudy(StudyConfig):
         } if scored else {}
         propagation = json.loads((bench.scene / "transforms.json").read_text()).get("ssnerf_propagation", {})
         scores.update(labelled_frames=len(labelled), training_frames=len(train), train_views_scored=len(scored),
-                      labelled_pixel_fraction=propagation.get("labelled_pixel_fraction", 1.0))
+                      labelled_pixel_fraction=propagation.get("labelled_pixel_fraction", 1.0),
+                      seen_by_labelled_frames=None if setting.pixels is not None else seen_by_frames(
+                          train, test, labelled))
         write_text_atomic(cache, json.dumps(scores, indent=2))
         return {**scores, **class_coverage(bench.scene), **self._record(metrics, bench)}
 
@@ -305,15 +329,18 @@ class PropagationStudy(StudyConfig):
             dense = average([scenes.get(ALL_FRAMES, {}).get(SSNERF) for scenes in results.values()])
             row["SS-NeRF / all frames"] = None if row[SSNERF] is None or not dense else row[SSNERF] / dense
             row[CEILING] = average([run.get("miou_ceiling") for run in runs])
+            row[SEEN] = average([run.get("seen_by_labelled_frames") for run in runs])
             row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
             rows.append(row)
-        titles = [*METHODS, "SS-NeRF / all frames", CEILING, "labelled pixels (fraction)"]
-        columns = [*METHODS, "SS-NeRF / all frames", CEILING, "labelled pixels"]
+        titles = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, "labelled pixels (fraction)"]
+        columns = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, "labelled pixels"]
         per_scene = {scene: {name: {method: runs[name].get(method) for method in METHODS} for name in runs}
                      for scene, runs in results.items()}
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
-                "mIoU any method can reach from these labels (a class no label shows scores 0).\n\n"
+                "mIoU any method can reach from these labels (a class no label shows scores 0). "
+                f"{SEEN}: the share of test pixels whose surface some labelled frame sees (with the scene's depth "
+                "maps; frame settings only).\n\n"
                 "Figure: `figure_propagation.png`.")
         return text, {"propagation": rows, "per_scene": per_scene}
 
