@@ -61,13 +61,16 @@ def test_the_model_switches_every_torch_hash_grid(lookup: str, expected: type) -
     assert list(model.state_dict()) == list(reference.state_dict())  # checkpoints load either way
 
 
-@pytest.mark.parametrize("sharing", ["branch", "property", "rgb-apart"])
-def test_the_class_grid_reaches_the_class_decoders_only(sharing: str) -> None:
-    """The class grid (`class_grid_max_res`) is an input of the MLP that decodes semantics and of no other: semantics
-    send it gradients, RGB and the other properties neither read it nor change it (whatever MLPs they share)."""
+@pytest.mark.parametrize("sharing, gridded", [("branch", ("semantics",)), ("property", ("semantics",)),
+                                             ("rgb-apart", ("semantics",)), ("rgb-apart", ("semantics", "normals")),
+                                             ("branch", ("normals",))])
+def test_the_class_grid_reaches_the_decoders_it_is_given_to_only(sharing: str, gridded: tuple) -> None:
+    """The class grid (`class_grid_max_res`) is an input of the MLPs that decode `class_grid_properties` (semantics
+    by default) and of no other: those send it gradients, RGB and the other properties neither read it nor change it
+    (whatever MLPs they share)."""
     torch.manual_seed(0)
     model = tiny_model(sampling="proposal", num_proposal_samples=(4,), proposal_max_res=(16,), num_field_samples=4,
-                       decoder_sharing=sharing, class_grid_max_res=32)
+                       decoder_sharing=sharing, class_grid_max_res=32, class_grid_properties=gridded)
     field = next(module for module in model.modules() if isinstance(module, SSNeRFField))
     grid = field.class_grid
     assert isinstance(grid, GatheredHashEncoding) and grid.num_levels == 4
@@ -79,12 +82,12 @@ def test_the_class_grid_reaches_the_class_decoders_only(sharing: str) -> None:
     for name, values in outputs.items():
         (gradient,) = torch.autograd.grad(values.sum(), grid.hash_table, retain_graph=True, allow_unused=True)
         reaches = gradient is not None and bool(gradient.abs().max() > 0)
-        assert reaches == (name == "semantics"), name
-    with torch.no_grad():  # other class-grid features: semantics change, nothing else does
+        assert reaches == (name in gridded), name
+    with torch.no_grad():  # other class-grid features: the gridded properties change, nothing else does
         grid.hash_table.uniform_(-1.0, 1.0)
     _, again = field.evaluate(positions, directions, None)
-    assert not torch.allclose(again["semantics"], outputs["semantics"])
-    assert all(torch.equal(again[name], outputs[name]) for name in outputs if name != "semantics")
+    assert all(not torch.allclose(again[name], outputs[name]) for name in gridded)
+    assert all(torch.equal(again[name], outputs[name]) for name in outputs if name not in gridded)
 
 
 def test_without_classes_or_at_zero_there_is_no_class_grid_and_checkpoints_keep_their_names() -> None:
@@ -92,4 +95,9 @@ def test_without_classes_or_at_zero_there_is_no_class_grid_and_checkpoints_keep_
     assert not [name for name in plain.state_dict() if "class_grid" in name]
     without_classes = tiny_model(properties=("normals", "shading"), class_grid_max_res=32)
     assert not [name for name in without_classes.state_dict() if "class_grid" in name]
+    normals_gridded = tiny_model(properties=("normals", "shading"), class_grid_max_res=32,
+                                 class_grid_properties=("semantics", "normals"))
+    assert [name for name in normals_gridded.state_dict() if "class_grid" in name]
+    with pytest.raises(ValueError, match="class_grid_properties: colour is not a property"):
+        tiny_model(class_grid_max_res=32, class_grid_properties=("colour",))
     assert list(tiny_model(class_grid_max_res=0).state_dict()) == list(plain.state_dict())

@@ -2,8 +2,8 @@
 
 Which decoder predicts which property comes from each `PropertySpec.branch` (the paper's Table 3 swaps them). The
 view-dependent decoder also sees the encoded view direction; the view-independent one optionally sees the encoded
-camera pose (the paper's surface-normal modelling). Optionally, the decoder MLPs of class-valued properties also see a
-coarse grid of their own (`class_grid`), through which sparse labels spread.
+camera pose (the paper's surface-normal modelling). Optionally, the decoder MLPs of some properties (semantics,
+normals) also see a coarse grid of their own (`class_grid`), through which sparse labels spread.
 """
 
 from __future__ import annotations
@@ -109,9 +109,11 @@ class SSNeRFField(Field):
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
         implementation: "tcnn" or "torch" for the spherical-harmonics encoding.
         class_grid: an encoding of contracted positions (mapped to [0, 1]) whose features the decoder MLPs of
-            class-valued properties see beside e_x: a coarse grid, spatially smooth, through which a few labelled
-            pixels spread to the surfaces around them (e_x is sharp: alone, sparse labels stay where they are).
+            `class_grid_properties` see beside e_x: a coarse grid, spatially smooth, through which a few labelled
+            pixels spread to the surfaces around them (e_x is sharp: alone, sparse labels stay where they are), and
+            which keeps what is constant over a surface (its normal) from e_x's fine-scale noise.
             None: the paper's decoders.
+        class_grid_properties: the properties whose decoder sees `class_grid` (each gets an MLP of its own).
     """
 
     def __init__(
@@ -128,12 +130,13 @@ class SSNeRFField(Field):
         density_noise: float = 0.0,
         implementation: Literal["tcnn", "torch"] = "torch",
         class_grid: Optional[nn.Module] = None,
+        class_grid_properties: Sequence[str] = (),
     ) -> None:
         super().__init__()
         self.specs = {spec.name: spec for spec in specs}
         self.encoder = encoder
-        classes = {spec.name for spec in specs if spec.kind.categorical}
-        self.class_grid = class_grid if classes else None
+        gridded = {spec.name for spec in specs if spec.name in class_grid_properties}
+        self.class_grid = class_grid if gridded else None
         extra_dim = self.class_grid.get_out_dim() if self.class_grid is not None else 0  # type: ignore[operator]
         self.spatial_distortion = SceneContraction(order=float("inf"))
         self.density_activation = density_activation
@@ -159,12 +162,12 @@ class SSNeRFField(Field):
             if not heads:
                 continue
             groups = decoder_groups(decoder_sharing, heads, rgb_name)
-            apart = [name for name in heads if name in classes] if extra_dim else []
+            apart = [name for name in heads if name in gridded] if extra_dim else []
             if groups is None and not apart:
                 self.decoders[branch] = BranchDecoder(in_dim, decoder_width, decoder_layers, heads)
                 continue
             groups = groups or {branch: heads}  # `branch`: one shared MLP, keyed by the branch
-            if apart:  # with a class grid, each class-valued property has an MLP of its own, the only one to see it
+            if apart:  # with a class grid, each property that sees it has an MLP of its own, the only one to see it
                 shared = {key: {name: channels for name, channels in group.items() if name not in apart}
                           for key, group in groups.items()}
                 groups = {**shared, **{name: {name: heads[name]} for name in apart}}

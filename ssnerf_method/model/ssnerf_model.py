@@ -42,11 +42,13 @@ from ssnerf_method.model.loss_balancing import LossBalancer
 from ssnerf_method.model.losses import LOSSES
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
+    REGISTRY,
     Branch,
     ClassKind,
     LossName,
     PropertySpec,
     RenderContext,
+    class_property,
     resolve_properties,
 )
 from ssnerf_method.rendering.depth import rendered_z_depth
@@ -60,6 +62,9 @@ from ssnerf_method.rendering.sampling import (
 )
 from ssnerf_method.viewer.label_panel import LabelPanel
 from ssnerf_method.viewer.semantic_panel import SemanticViewerPanel, highlight_class
+
+CLASS_GRID_PROPERTIES: Tuple[str, ...] = (class_property().name,)
+"""The properties that see the class grid unless a config names others (runs saved before the option had it)."""
 
 
 @dataclass
@@ -95,9 +100,12 @@ class SSNeRFModelConfig(ModelConfig):
     grid_feature_dim: int = 15
     """Hash grid: size of the feature e_x passed to the decoders."""
     class_grid_max_res: int = 0
-    """If > 0, the decoders of class-valued properties (semantics) also see a coarse hash grid of their own (4 levels,
-    resolution 16 up to this one), spatially smooth, through which a few annotated frames, clicked pixels or viewer
-    strokes spread to the surfaces around them (`ssnerf-study propagation`). 0: none (the paper's decoders)."""
+    """If > 0, the decoders of `class_grid_properties` also see a coarse hash grid of their own (4 levels, resolution
+    16 up to this one), spatially smooth, through which a few annotated frames, clicked pixels or viewer strokes spread
+    to the surfaces around them (`ssnerf-study propagation`). 0: none (the paper's decoders)."""
+    class_grid_properties: Tuple[str, ...] = CLASS_GRID_PROPERTIES
+    """Properties whose decoder MLP sees the class grid (each has an MLP of its own), when `class_grid_max_res` > 0:
+    the class-valued one by default; normals, flat over whole surfaces, gain from it too (ssnerf-lite's)."""
     direction_encoding: Literal["nerf", "sh"] = "nerf"
     """View-direction encoding of F_dec^v: 4-frequency sinusoids (paper) or spherical harmonics."""
     decoder_width: int = 128
@@ -256,11 +264,17 @@ class SSNeRFModel(Model):
             density_noise=self.config.density_noise,
             implementation=self.config.implementation,
             class_grid=self._build_class_grid(),
+            class_grid_properties=self.config.class_grid_properties,
         )
 
     def _build_class_grid(self) -> Optional[HashEncoding]:
-        """The class grid of `class_grid_max_res` (None when 0, or when no class-valued property is trained)."""
-        if self.config.class_grid_max_res <= 0 or self.class_spec is None:
+        """The class grid of `class_grid_max_res` (None when 0, or when none of `class_grid_properties` is trained)."""
+        unknown = sorted(set(self.config.class_grid_properties) - set(REGISTRY))
+        if unknown:
+            raise ValueError(f"class_grid_properties: {', '.join(unknown)} is not a property; choose among "
+                             f"{', '.join(REGISTRY)}")
+        trained = {spec.name for spec in self.specs}
+        if self.config.class_grid_max_res <= 0 or not trained & set(self.config.class_grid_properties):
             return None
         return HashEncoding(num_levels=4, min_res=16, max_res=self.config.class_grid_max_res, log2_hashmap_size=17,
                             features_per_level=2, implementation=self.config.implementation)
