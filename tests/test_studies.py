@@ -21,7 +21,14 @@ from ssnerf_method.experiments.autolabel import AutoLabelStudy
 from ssnerf_method.experiments.propagation import CEILING, SEEN, PropagationStudy
 from ssnerf_method.experiments.report import BASELINE_ROWS
 from ssnerf_method.experiments.sparsity import SparsityStudy
-from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy, run_study, together
+from ssnerf_method.experiments.studies import (
+    BranchStudy,
+    ClassGridStudy,
+    MultiTaskStudy,
+    RGBStudy,
+    run_study,
+    together,
+)
 from ssnerf_method.experiments.transfer import TransferStudy
 
 
@@ -260,8 +267,34 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
     assert np.asarray(Image.open(output / "figure_propagation.png")).std() > 10
 
 
+@pytest.mark.filterwarnings("ignore")
+def test_quick_class_grid_study_gives_the_grid_to_the_decoders_it_names(trained_scene, tmp_path: Path) -> None:
+    torch.set_num_threads(1)
+    scene, _ = trained_scene
+    output = tmp_path / "class_grid"
+    study = ClassGridStudy(quick=True, output=output, scenes=(scene,), properties=("normals",), gridded=("normals",))
+    results = study.run()
+    assert_planned(study, output, 0.0)
+    expected = {"ssnerf-normals-no-class-grid": (), "ssnerf-normals-class-grid": ("normals",),
+                "ssnerf-all-class-grid-semantics": ("semantics",), "ssnerf-all-class-grid-normals": ("normals",)}
+    assert set(results[scene.name]) == set(expected)
+    for run, gridded in expected.items():
+        _, pipeline, _, _ = eval_setup(Path(results[scene.name][run]["config"]), test_mode="test")
+        field = pipeline.model.sampling.field_module
+        assert tuple(pipeline.model.config.class_grid_properties) == gridded, run
+        assert (field.class_grid is not None) == bool(gridded), run  # a normals-only model without: no grid at all
+    tables = json.loads((output / "study_class-grid.json").read_text())["tables"]
+    assert [row["row"] for row in tables["alone"]] == [
+        f"alone, no class grid ({scene.name})", "alone, no class grid (average)",
+        f"alone, with the class grid ({scene.name})", "alone, with the class grid (average)"]
+    assert all(0.0 <= row["normals"] <= 2.0 for row in tables["alone"])
+    for row in tables["all"]:
+        assert row["psnr"] > 5.0 and 0.0 <= row["semantics_miou"] <= 1.0, row
+    assert "all properties, grid for normals" in (output / "study_class-grid.md").read_text()
+
+
 @pytest.mark.parametrize("study", [BranchStudy, RGBStudy, MultiTaskStudy, TransferStudy, AugmentationStudy,
-                                   AutoLabelStudy, SparsityStudy, PropagationStudy])
+                                   AutoLabelStudy, SparsityStudy, PropagationStudy, ClassGridStudy])
 def test_a_study_hands_its_launcher_flags_to_the_runs(study, tmp_path: Path) -> None:
     # `ssnerf-study ... --launcher ray` once trained everything locally, one run after another: the flags were dropped
     options = study(output=tmp_path, steps=7, launcher="ray", ray_address="ray://head:10001", cpus_per_run=2.0,

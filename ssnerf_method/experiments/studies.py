@@ -11,6 +11,8 @@ method, steps, seed and wall-clock time of every run. Runs are named by what the
 - `rgb` (Table 2): left, RGB PSNR of the RGB-only NeRF and of each single-property SS-NeRF; right, each property with
   and without the RGB loss (weight 0: the RGB head stays, nothing trains it).
 - `multitask` (Table 4): a target property alone, with each other property, and with all; (+)/(-) against alone.
+- `class-grid` (this plugin's option): each property alone with and without the coarse class grid as an input of its
+  decoder, and the all-properties model with the grid for the class property only or for `--gridded`.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ import sys
 import time
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
@@ -51,12 +53,16 @@ from ssnerf_method.experiments.report import (
     property_title,
     training_words,
 )
+from ssnerf_method.method_configs import ssnerf_lite_config
+from ssnerf_method.model.ssnerf_model import CLASS_GRID_PROPERTIES
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName
 
 Results = Dict[str, Dict[str, Dict[str, Any]]]
 """scene -> run name -> that run's test-split metrics."""
 RUN_RECORD = ("train_seconds", "seed", "config")
 """What a report says of every run besides its metrics: training wall-clock time, seed and config.yml."""
+LITE_MODEL = ssnerf_lite_config.pipeline.model
+"""`ssnerf-lite`'s model config, whose class-grid settings the class-grid study starts from."""
 
 
 def single(name: str) -> str:
@@ -70,6 +76,20 @@ def together(names: Tuple[str, ...]) -> str:
     if ordered == list(OPTIONAL_PROPERTIES):
         return ALL
     return single(ordered[0]) if len(ordered) == 1 else "ssnerf-" + "+".join(ordered)
+
+
+def scene_rows(results: Results, title: str, properties: Tuple[str, ...], run_of: Callable[[str], str]
+               ) -> List[Dict[str, Any]]:
+    """Rows `title (scene)` for every scene and their average, each column of `properties` read from the run
+    `run_of(property)`."""
+    rows = []
+    for scene, runs in [*results.items(), ("average", None)]:
+        row: Dict[str, Any] = {"row": f"{title} ({scene})"}
+        for column in columns_of(properties):
+            row[column.key] = average([r.get(run_of(column.prop), {}).get(column.metric)
+                                       for r in (results.values() if runs is None else [runs])])
+        rows.append(row)
+    return rows
 
 
 @dataclass
@@ -124,15 +144,9 @@ class BranchStudy(StudyConfig):
         return runs
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
-        rows = []
-        for branch, title in (("v", "F_dec^v"), ("nv", "F_dec^nv")):
-            for scene, runs in [*results.items(), ("average", None)]:
-                row: Dict[str, Any] = {"row": f"{title} ({scene})"}
-                for column in columns_of(self.properties):
-                    run = self.run_on(column.prop, branch).name
-                    values = [r.get(run, {}).get(column.metric) for r in ([runs] if runs else results.values())]
-                    row[column.key] = average(values)
-                rows.append(row)
+        rows = [row for branch, title in (("v", "F_dec^v"), ("nv", "F_dec^nv"))
+                for row in scene_rows(results, title, self.properties,
+                                      lambda prop, branch=branch: self.run_on(prop, branch).name)]
         text = property_table(rows, self.properties)
         data: Dict[str, Any] = {"table3": rows}
         if self.normals:
@@ -166,15 +180,10 @@ class RGBStudy(StudyConfig):
         left = [{"row": scene, **{run: runs.get(run, {}).get("psnr") for run in left_columns}}
                 for scene, runs in results.items()]
         left.append({"row": "average", **{run: average([row[run] for row in left]) for run in left_columns}})
-        right = []
-        for scene, runs in [*results.items(), ("average", None)]:
-            for suffix, title in (("", "with RGB"), ("-no-rgb", "without RGB")):
-                row: Dict[str, Any] = {"row": f"{title} ({scene})"}
-                for column in columns_of(self.properties):
-                    run = single(column.prop) + suffix
-                    row[column.key] = average([r.get(run, {}).get(column.metric)
-                                               for r in ([runs] if runs else results.values())])
-                right.append(row)
+        with_rgb, without = (scene_rows(results, title, self.properties,
+                                        lambda prop, suffix=suffix: single(prop) + suffix)
+                             for suffix, title in (("", "with RGB"), ("-no-rgb", "without RGB")))
+        right = [row for pair in zip(with_rgb, without) for row in pair]  # per scene: with, then without
         titles = ["NeRF", *(f"SS-NeRF-{REGISTRY[prop].short}" for prop in self.properties)]
         text = ("Left: RGB PSNR\n\n" + markdown(left, left_columns, titles, 2)
                 + "\n\nRight: each property with and without the RGB loss\n\n"
@@ -243,6 +252,63 @@ class MultiTaskStudy(StudyConfig):
         lines += ["| " + cells["row"] + " | " + " | ".join(cells[title] for title in columns) + " |"
                   for cells in marked]
         return f"{column.title}; (+) better, (−) worse than the target alone\n\n" + "\n".join(lines), rows
+
+
+@dataclass
+class ClassGridStudy(StudyConfig):
+    """Which decoders should read the class grid (`class_grid_properties`): each property alone with and without it,
+    and the all-properties model with it for the class property only and for `--gridded` (ssnerf-lite's choice)."""
+
+    properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
+    """Properties compared with and without the grid, each in a model of its own."""
+    gridded: Tuple[PropertyName, ...] = LITE_MODEL.class_grid_properties
+    """The all-properties model's second setting: the properties whose decoders read the grid (ssnerf-lite's)."""
+    max_res: int = LITE_MODEL.class_grid_max_res
+    """Finest resolution of the class grid in every run (ssnerf-lite's; set in every run, so that the paper's
+    `ssnerf` gets the grid too)."""
+    all_properties_model: bool = True
+    """Also compare the all-properties model with the grid for the class property only and for `--gridded`."""
+
+    name = "class-grid"
+
+    def alone(self, prop: str, grid: bool) -> ModelRun:
+        """`prop` alone, its decoder reading the grid or not (no other decoder exists to read it)."""
+        return ModelRun(f"{single(prop)}-{'' if grid else 'no-'}class-grid", (prop,),
+                        {"class_grid_max_res": self.max_res, "class_grid_properties": (prop,) if grid else ()})
+
+    def everything(self, gridded: Tuple[str, ...]) -> ModelRun:
+        """Every property in one model, the decoders of `gridded` reading the grid."""
+        ordered = tuple(name for name in OPTIONAL_PROPERTIES if name in gridded)
+        return ModelRun(f"{ALL}-class-grid-" + "+".join(ordered), OPTIONAL_PROPERTIES,
+                        {"class_grid_max_res": self.max_res, "class_grid_properties": ordered})
+
+    def settings(self) -> Dict[str, Tuple[str, ...]]:
+        """The all-properties model's two settings: row title -> the properties given the grid."""
+        return {f"all properties, grid for {', '.join(gridded)}": gridded
+                for gridded in (CLASS_GRID_PROPERTIES, self.gridded)}
+
+    def runs(self) -> List[ModelRun]:
+        runs = [self.alone(prop, grid) for prop in self.properties for grid in (False, True)]
+        if self.all_properties_model:
+            runs += [self.everything(gridded) for gridded in self.settings().values()]
+        return runs
+
+    def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
+        rows = [row for grid, title in ((False, "alone, no class grid"), (True, "alone, with the class grid"))
+                for row in scene_rows(results, title, self.properties,
+                                      lambda prop, grid=grid: self.alone(prop, grid).name)]
+        text = "Each property in a model of its own\n\n" + property_table(rows, self.properties)
+        data: Dict[str, Any] = {"alone": rows}
+        if self.all_properties_model:
+            columns = [("psnr", "RGB PSNR ↑"), *((column.metric, column.title)
+                                                 for column in columns_of(OPTIONAL_PROPERTIES))]
+            every = [{"row": title, **{metric: average([runs.get(self.everything(gridded).name, {}).get(metric)
+                                                        for runs in results.values()]) for metric, _ in columns}}
+                     for title, gridded in self.settings().items()]
+            text += ("\n\nThe all-properties model, averaged over the scenes\n\n"
+                     + markdown(every, [metric for metric, _ in columns], [title for _, title in columns], 4))
+            data["all"] = every
+        return text, data
 
 
 def commit() -> Optional[str]:

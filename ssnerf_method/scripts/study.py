@@ -15,7 +15,7 @@ from ssnerf_method.experiments.augmentation import AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
 from ssnerf_method.experiments.propagation import PropagationStudy
 from ssnerf_method.experiments.sparsity import SparsityStudy
-from ssnerf_method.experiments.studies import BranchStudy, MultiTaskStudy, RGBStudy
+from ssnerf_method.experiments.studies import BranchStudy, ClassGridStudy, MultiTaskStudy, RGBStudy
 from ssnerf_method.experiments.transfer import TransferStudy
 
 STUDIES: Dict[str, Type] = {
@@ -27,6 +27,7 @@ STUDIES: Dict[str, Type] = {
     "autolabel": AutoLabelStudy,
     "sparsity": SparsityStudy,
     "propagation": PropagationStudy,
+    "class-grid": ClassGridStudy,
 }
 """Each subcommand's study."""
 
