@@ -11,6 +11,7 @@ from __future__ import annotations
 from typing import Dict, List, Literal, Optional, Sequence, Tuple
 
 import torch
+import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor, nn
 
@@ -193,6 +194,16 @@ class SSNeRFField(Field):
             return raw_density, feature
         grid = self.class_grid(unit_cube(contracted).reshape(-1, 3))
         return raw_density, torch.cat([feature, grid.view(*feature.shape[:-1], -1).to(feature)], dim=-1)
+
+    def density_normals(self, positions: Float[Tensor, "*bs 3"], step: float) -> Float[Tensor, "*bs 3"]:
+        """The density's own outward unit normals at world positions: minus its gradient, by forward differences of
+        `step` world units along each axis (differentiable with respect to F_enc, unlike an autograd gradient through
+        a compiled field, and smoothed over `step`)."""
+        offsets = torch.cat([torch.zeros(1, 3), step * torch.eye(3)]).to(positions)
+        probes = positions[..., None, :] + offsets  # (*bs, 4, 3): the position, then one step along x, y and z
+        raw_density, _ = self.encoder(self.spatial_distortion(probes.reshape(-1, 3)))
+        raw_density = raw_density.view(*positions.shape[:-1], 4).float()
+        return -F.normalize(raw_density[..., 1:] - raw_density[..., :1], dim=-1)
 
     def activate_density(self, raw_density: Float[Tensor, "*bs 1"]) -> Float[Tensor, "*bs 1"]:
         """Density from F_enc's raw output: the training noise (NeRF's regulariser), then the activation."""

@@ -11,6 +11,8 @@ from pathlib import Path
 from typing import Dict, List, Literal, Optional, Tuple, Type
 
 import torch
+import torch.nn.functional as F
+from jaxtyping import Float
 from torch import Tensor, nn
 
 from nerfstudio.cameras.cameras import Cameras
@@ -19,7 +21,14 @@ from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttrib
 from nerfstudio.field_components.encodings import HashEncoding
 from nerfstudio.field_components.spatial_distortions import SceneContraction
 from nerfstudio.fields.density_fields import HashMLPDensityField
-from nerfstudio.model_components.losses import DepthLossType, depth_loss, distortion_loss, interlevel_loss
+from nerfstudio.model_components.losses import (
+    DepthLossType,
+    depth_loss,
+    distortion_loss,
+    interlevel_loss,
+    orientation_loss,
+    pred_normal_loss,
+)
 from nerfstudio.model_components.renderers import AccumulationRenderer, DepthRenderer
 from nerfstudio.model_components.scene_colliders import NearFarCollider
 from nerfstudio.models.base_model import Model, ModelConfig
@@ -46,6 +55,7 @@ from ssnerf_method.properties import (
     Branch,
     ClassKind,
     LossName,
+    NormalKind,
     PropertySpec,
     RenderContext,
     class_property,
@@ -172,6 +182,17 @@ class SSNeRFModelConfig(ModelConfig):
     """Depth loss: DS-NeRF's (weights pulled into a narrow window around the true depth) or URF's."""
     depth_sigma: float = 0.01
     """Width of the depth loss's window around the true depth, in scene units (as nerfstudio's `depth_sigma`)."""
+    normals_density_mult: float = 0.0
+    """If > 0, the weight of a loss that lets the normals labels shape the geometry: at each ray's
+    `normals_density_samples` heaviest samples, the density's own normals (`SSNeRFField.density_normals`) are pulled
+    towards the predicted normals (detached) and kept facing the camera (nerfstudio's `pred_normal_loss` and
+    `orientation_loss`, as nerfacto and Ref-NeRF use them, but with the gradient into the density instead of the
+    normals head). Only with world-frame normals trained (`normals_mode` world); otherwise nothing. 0: off."""
+    normals_density_samples: int = 2
+    """Samples per ray, the heaviest, at which `normals_density_mult`'s loss is computed (each costs three more
+    F_enc evaluations)."""
+    normals_density_step: float = 0.01
+    """Finite-difference step of the density's normals, in scene units (the density is smoothed over it)."""
     spare_classes: int = 0
     """Semantic class slots beyond the dataset's classes, for classes added in the viewer's Label panel while
     training (a new class takes the next free slot). 0: classes can only come from the dataset."""
@@ -358,6 +379,8 @@ class SSNeRFModel(Model):
             outputs[self.class_spec.name] = highlight_class(
                 outputs[self.class_spec.prediction_key], outputs[self.rgb_spec.prediction_key], self.palette, shown
             )
+        if self.training and self.config.normals_density_mult > 0 and self.density_normal_spec is not None:
+            outputs["normals_density"] = self.normals_density(final, ray_bundle.directions)
         outputs["depth"] = self.renderer_depth(weights=final.weights, ray_samples=final.ray_samples)
         outputs["accumulation"] = self.renderer_accumulation(weights=final.weights)
         if ray_bundle.metadata and "directions_norm" in ray_bundle.metadata:
@@ -370,6 +393,32 @@ class SSNeRFModel(Model):
             outputs["depth_weights_list"] = result.weights_list or [level.weights for level in levels]
             outputs["depth_ray_samples_list"] = result.ray_samples_list or [level.ray_samples for level in levels]
         return outputs
+
+    @property
+    def density_normal_spec(self) -> Optional[PropertySpec]:
+        """The trained world-frame normals, which `normals_density_mult` ties the density's normals to (if any)."""
+        return next((spec for spec in self.specs if isinstance(spec.kind, NormalKind) and spec.kind.mode == "world"),
+                    None)
+
+    def normals_density(self, level: SampleLevel, directions: Float[Tensor, "*bs 3"]) -> Float[Tensor, ""]:
+        """`normals_density_mult`'s loss on one level: the density's normals against the predicted ones at each ray's
+        heaviest samples, plus their orientation towards the camera, weighted by the samples' (detached) weights."""
+        spec = self.density_normal_spec
+        assert spec is not None
+        weights = level.weights.detach()
+        count = min(self.config.normals_density_samples, weights.shape[-2])
+        heaviest = weights[..., 0].topk(count, dim=-1).indices[..., None]  # (*bs, count, 1)
+
+        def pick(values: Tensor) -> Tensor:
+            return values.gather(-2, heaviest.expand(*heaviest.shape[:-1], values.shape[-1]))
+
+        positions = pick(level.ray_samples.frustums.get_positions())
+        density_normals = self.sampling.final_field.density_normals(positions, self.config.normals_density_step)
+        predicted = F.normalize(pick(level.field_outputs[spec.name]).detach().float(), dim=-1)
+        picked = pick(weights)
+        loss = pred_normal_loss(picked, density_normals, predicted) + orientation_loss(picked, density_normals,
+                                                                                       directions)
+        return loss.mean()
 
     def get_rgba_image(self, outputs: Dict[str, Tensor], output_name: str = "rgb") -> Tensor:
         """Any display output as RGBA for nerfstudio's exporters (`ns-export --rgb-output-name semantics` gives class
@@ -428,6 +477,8 @@ class SSNeRFModel(Model):
             )
             assert metrics_dict is not None
             losses["distortion_loss"] = self.config.distortion_loss_mult * metrics_dict["distortion"]
+        if "normals_density" in outputs:
+            losses["normals_density_loss"] = self.config.normals_density_mult * outputs["normals_density"]
         if self.training and "depth_weights_list" in outputs and DEPTH_KEY in batch:
             losses["depth_loss"] = self.config.depth_loss_mult * self.depth_loss(outputs, batch)
         return losses

@@ -68,6 +68,11 @@ class RaySampling(nn.Module):
     def forward(self, ray_bundle: RayBundle) -> SamplingResult:
         raise NotImplementedError
 
+    @property
+    def final_field(self) -> Field:
+        """The field whose outputs make the final level (the rendered prediction)."""
+        raise NotImplementedError
+
     def before_training_step(self, step: int) -> None:
         """Called before each training step (schedules)."""
 
@@ -96,6 +101,10 @@ class HierarchicalSampling(RaySampling):
         self.fine_field = fine_field
         self.uniform_sampler = UniformSampler(num_samples=num_coarse)
         self.pdf_sampler = PDFSampler(num_samples=num_fine, include_original=True)
+
+    @property
+    def final_field(self) -> Field:
+        return self.fine_field
 
     def forward(self, ray_bundle: RayBundle) -> SamplingResult:
         coarse = evaluate(self.coarse_field, self.uniform_sampler(ray_bundle))
@@ -133,6 +142,10 @@ class ProposalSampling(RaySampling):
             single_jitter=True,
             update_sched=update_schedule,
         )
+
+    @property
+    def final_field(self) -> Field:
+        return self.field_module
 
     def forward(self, ray_bundle: RayBundle) -> SamplingResult:
         density_fns = self.density_fns if self.training else [network.density_fn for network in self.proposal_networks]
