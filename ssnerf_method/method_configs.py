@@ -100,10 +100,11 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             # 0.331 on the two walkthrough scenes at 1000 steps, every frame labelled unchanged (CHANGELOG.md,
             # 2026-12-04).
             class_grid_max_res=128,
-            # Normals are constant over whole surfaces; read through the same coarse grid (an MLP of their own) they
-            # lose e_x's fine-scale speckle: SN L1 of a normals-only model, 1000 steps, 0.0394 -> 0.0331 / 0.0283 ->
-            # 0.0223 on the two walkthrough scenes (the Heuristic: 0.0247 / 0.0265; CHANGELOG.md, 2026-12-04).
-            class_grid_properties=("semantics", "normals"),
+            # Normals, shading and keypoints read the same coarse grid (each decoder an MLP of its own) and lose
+            # e_x's fine-scale speckle: single-property models, 1000 steps, the two walkthrough scenes, SN L1 0.0339
+            # -> 0.0277, SH L1 0.0416 -> 0.0336, KP F1 / AP 0.529 / 0.393 -> 0.580 / 0.471 (`ssnerf-study
+            # class-grid`, CHANGELOG.md, 2026-12-04). Edges do not gain (ED AP 0.918 -> 0.895).
+            class_grid_properties=("semantics", "normals", "shading", "keypoints"),
             spare_classes=SPARE_CLASSES,
         ),
     ),

@@ -115,7 +115,7 @@ class SSNeRFModelConfig(ModelConfig):
     to the surfaces around them (`ssnerf-study propagation`). 0: none (the paper's decoders)."""
     class_grid_properties: Tuple[str, ...] = CLASS_GRID_PROPERTIES
     """Properties whose decoder MLP sees the class grid (each has an MLP of its own), when `class_grid_max_res` > 0:
-    the class-valued one by default; normals, flat over whole surfaces, gain from it too (ssnerf-lite's)."""
+    the class-valued one by default; normals, shading and keypoints gain from it too (ssnerf-lite's)."""
     direction_encoding: Literal["nerf", "sh"] = "nerf"
     """View-direction encoding of F_dec^v: 4-frequency sinusoids (paper) or spherical harmonics."""
     decoder_width: int = 128
