@@ -2,8 +2,9 @@
 
 Which decoder predicts which property comes from each `PropertySpec.branch` (the paper's Table 3 swaps them). The
 view-dependent decoder also sees the encoded view direction; the view-independent one optionally sees the encoded
-camera pose (the paper's surface-normal modelling). Optionally, the decoder MLPs of some properties (semantics,
-normals) also see a coarse grid of their own (`class_grid`), through which sparse labels spread.
+camera pose (the paper's surface-normal modelling). Optionally, the decoder MLPs of some properties (semantics; in
+`ssnerf-lite` also normals, shading and keypoints) see a coarse grid of their own (`class_grid`), through which sparse
+labels spread.
 """
 
 from __future__ import annotations
