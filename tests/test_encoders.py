@@ -7,10 +7,11 @@ import copy
 
 import pytest
 import torch
+from torch.profiler import profile
 
 from nerfstudio.field_components.encodings import HashEncoding
 
-from ssnerf_method.fields.encoders import GatheredHashEncoding, gather_hash_lookups
+from ssnerf_method.fields.encoders import GatheredHashEncoding, GatherRows, add_rows, gather_hash_lookups
 from ssnerf_method.fields.ssnerf_field import SSNeRFField
 
 from test_rendering import tiny_model
@@ -47,6 +48,31 @@ def test_gathered_lookup_gives_nerfstudio_features_and_gradients() -> None:
     torch.testing.assert_close(gathered.hash_table.grad, reference.hash_table.grad, rtol=1e-5, atol=1e-5)
     nothing = torch.zeros(0, 3)  # a batch without samples (e.g. every ray culled) keeps its shape
     assert gathered(nothing).shape == reference(nothing).shape == (0, reference.get_out_dim())
+
+
+def test_gathered_rows_backward_is_one_serial_sum_also_when_compiled() -> None:
+    """`add_rows` sums repeated indices as `index_add_` does (an empty index gives float zeros), and the compiled
+    gather's backward calls it instead of inlining an atomic scatter: same gradient as eager `index_select`."""
+    generator = torch.Generator().manual_seed(2)
+    index = torch.cat([torch.randint(0, 6, (400,), generator=generator), torch.tensor([9, 9, 9])])  # row 9 thrice
+    values = torch.randn(403, 2, generator=generator)
+    summed = add_rows(index, values, 12)
+    torch.testing.assert_close(summed, torch.zeros(12, 2).index_add_(0, index, values))
+    assert bool((summed[6:9] == 0).all()) and bool((summed[9] != 0).all())
+    empty = add_rows(torch.zeros(0, dtype=torch.long), torch.zeros(0, 2), 3)
+    assert empty.dtype == torch.float32 and torch.equal(empty, torch.zeros(3, 2))
+
+    table = torch.randn(12, 2, generator=generator, requires_grad=True)
+    weights = torch.randn(403, 2, generator=generator)
+    (torch.index_select(table, 0, index) * weights).sum().backward()
+    expected, table.grad = table.grad, None
+    compiled = torch.compile(lambda t, i: (GatherRows.apply(t, i) * weights).sum(), dynamic=False)
+    compiled(table, index).backward()  # the first call compiles
+    table.grad = None
+    with profile() as trace:
+        compiled(table, index).backward()
+    torch.testing.assert_close(table.grad, expected)
+    assert any(event.name == "ssnerf::add_rows" for event in trace.events())
 
 
 @pytest.mark.parametrize("lookup, expected", [("gathered", GatheredHashEncoding), ("nerfstudio", HashEncoding)])

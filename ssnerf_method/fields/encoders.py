@@ -10,7 +10,7 @@ from __future__ import annotations
 from typing import Literal, Tuple
 
 import torch
-from jaxtyping import Float
+from jaxtyping import Float, Int
 from torch import Tensor, nn
 
 from nerfstudio.field_components.encodings import HashEncoding, NeRFEncoding
@@ -84,14 +84,49 @@ _HASH_PRIMES = (1, 2654435761, 805459861)
 """Instant-NGP's spatial hash primes, as `HashEncoding.hash_fn` multiplies the three axes by them."""
 
 
+@torch.library.custom_op("ssnerf::add_rows", mutates_args=())
+def add_rows(index: Tensor, values: Tensor, rows: int) -> Tensor:
+    """`rows` zero rows with each row of `values` added at its `index` (the backward of a row gather).
+
+    On a CPU the sum runs serially (`torch.bincount` per column), which is also deterministic. As a custom op it is
+    opaque to inductor, which would compile the scatter into a parallel loop of atomic adds: on a hash grid's table
+    those contend for the coarse levels' few cells, which every sample reads (`scripts/profile_step`: the compiled
+    field's backward spent about 100 ms of a 400 ms step there)."""
+    if values.device.type != "cpu":
+        return values.new_zeros(rows, values.shape[-1]).index_add_(0, index, values)
+    columns = [torch.bincount(index, weights=values[:, column], minlength=rows) for column in range(values.shape[-1])]
+    return torch.stack(columns, dim=-1).to(values.dtype)  # (an empty index gives int64 zeros)
+
+
+@add_rows.register_fake
+def _(index: Tensor, values: Tensor, rows: int) -> Tensor:
+    return values.new_empty(rows, values.shape[-1])
+
+
+class GatherRows(torch.autograd.Function):
+    """`table[index]` (an `index_select`, which inductor fuses into what follows) whose backward is `add_rows`."""
+
+    @staticmethod
+    def forward(ctx, table: Float[Tensor, "rows feature"], index: Int[Tensor, " n"]) -> Float[Tensor, "n feature"]:
+        ctx.save_for_backward(index)
+        ctx.rows = table.shape[0]
+        return torch.index_select(table, 0, index)
+
+    @staticmethod
+    def backward(ctx, grad: Float[Tensor, "n feature"]) -> Tuple[Tensor, None]:
+        (index,) = ctx.saved_tensors
+        return add_rows(index, grad.contiguous(), ctx.rows), None
+
+
 class GatheredHashEncoding(HashEncoding):
     """nerfstudio's `HashEncoding` whose torch path hashes and reads the eight cell corners in one batch.
 
     The features are the same numbers as nerfstudio's (same hash, same interpolation, same order of operations: a
     test compares them bit for bit). nerfstudio indexes the table eight times with `table[indices]`, whose backward on
     a CPU is a serial `index_put_(accumulate=True)` into eight zero-filled table-sized gradients, and hashes each
-    corner from scratch; here one `index_select` (one `index_add_` backward) reads all corners, and the per-axis
-    products of the hash are computed once and combined by XOR. The tcnn path is untouched."""
+    corner from scratch; here one `index_select` reads all corners (`GatherRows`: its backward is one serial sum,
+    also when compiled), and the per-axis products of the hash are computed once and combined by XOR. The tcnn path is
+    untouched."""
 
     def pytorch_fwd(self, in_tensor: Float[Tensor, "*bs input_dim"]) -> Float[Tensor, "*bs output_dim"]:
         assert in_tensor.shape[-1] == 3
@@ -104,7 +139,7 @@ class GatheredHashEncoding(HashEncoding):
                    for axis in range(3))
         hashed = (x[:, None, None] ^ y[None, :, None]) ^ z[None, None, :]  # [2 (x), 2 (y), 2 (z), ..., L]
         hashed = hashed % self.hash_table_size + self.hash_offset.to(hashed.device)
-        corners = torch.index_select(self.hash_table, 0, hashed.reshape(-1))
+        corners = GatherRows.apply(self.hash_table, hashed.reshape(-1))
         corners = corners.view(*hashed.shape, self.features_per_level)  # [2, 2, 2, ..., L, F]
         # nerfstudio's interpolation, x first, then y, then z; index 0 is the ceiling corner, weighted by the offset
         # (unbind, not indexing: its backward stacks the halves' gradients instead of zero-filling one per half)
