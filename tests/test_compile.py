@@ -22,6 +22,7 @@ from nerfstudio.field_components.field_heads import FieldHeadNames
 
 from ssnerf_method.fields.compiled import CompiledOrEager
 from ssnerf_method.method_configs import ssnerf_lite_config
+from ssnerf_method.model import ssnerf_model
 from ssnerf_method.model.ssnerf_model import SSNeRFModel, SSNeRFModelConfig
 from ssnerf_method.properties import OPTIONAL_PROPERTIES
 from ssnerf_method.scripts import profile_step
@@ -78,11 +79,17 @@ def outputs_and_gradients(model: SSNeRFModel, evaluate) -> tuple[Dict[str, torch
 
 @pytest.fixture(scope="module")
 def eager_and_compiled() -> List[SSNeRFModel]:
-    """The same tiny lite model twice, the second compiled as a long run compiles it (one compile per module)."""
-    eager = lite_model()
+    """The same tiny lite model three times: eager; compiled as a long run compiles it, in float32; compiled with
+    bfloat16 matmuls, as on a CPU that has them (one compile per module and precision)."""
+    eager = lite_model(bfloat16_matmuls=False)
     compiled = copy.deepcopy(eager)
     compiled.get_training_callbacks(run_for(1000))
-    return [eager, compiled]
+    mixed = copy.deepcopy(eager)
+    mixed.config.bfloat16_matmuls = True
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(ssnerf_model, "native_bfloat16", lambda: True)
+        mixed.get_training_callbacks(run_for(1000))
+    return [eager, compiled, mixed]
 
 
 def assert_same(eager: Dict[str, torch.Tensor], compiled: Dict[str, torch.Tensor]) -> None:
@@ -91,15 +98,15 @@ def assert_same(eager: Dict[str, torch.Tensor], compiled: Dict[str, torch.Tensor
         torch.testing.assert_close(compiled[name], eager[name], rtol=1e-4, atol=1e-5, msg=name)
 
 
+def field_outputs(model: SSNeRFModel, ray_samples: RaySamples) -> Dict[str, torch.Tensor]:
+    return {str(name): values for name, values in model.sampling.field_module(ray_samples).items()}
+
+
 def test_the_compiled_field_gives_the_eager_outputs_and_gradients(eager_and_compiled: List[SSNeRFModel]) -> None:
-    eager, compiled = eager_and_compiled
+    eager, compiled, _ = eager_and_compiled
     ray_samples = samples()
-
-    def field_outputs(model: SSNeRFModel) -> Dict[str, torch.Tensor]:
-        return {str(name): values for name, values in model.sampling.field_module(ray_samples).items()}
-
-    expected, expected_gradients = outputs_and_gradients(eager, field_outputs)
-    got, gradients = outputs_and_gradients(compiled, field_outputs)
+    expected, expected_gradients = outputs_and_gradients(eager, lambda model: field_outputs(model, ray_samples))
+    got, gradients = outputs_and_gradients(compiled, lambda model: field_outputs(model, ray_samples))
     assert compiled.sampling.field_module.compiled_evaluate.compiled is not None, "compiling fell back to eager"
     assert set(expected) == {"rgb", "semantics", "normals", "shading", str(FieldHeadNames.DENSITY)}
     assert_same(expected, got)
@@ -111,7 +118,7 @@ def test_the_compiled_field_gives_the_eager_outputs_and_gradients(eager_and_comp
 def test_the_compiled_proposal_network_gives_the_eager_densities_and_gradients(
     eager_and_compiled: List[SSNeRFModel],
 ) -> None:
-    eager, compiled = eager_and_compiled
+    eager, compiled, _ = eager_and_compiled
     positions = samples(num_rays=9, num_samples=6).frustums.get_positions()
     assert isinstance(compiled.sampling.density_fns[0], type(lambda: None))  # the flattening wrapper
 
@@ -123,6 +130,45 @@ def test_the_compiled_proposal_network_gives_the_eager_densities_and_gradients(
     assert_same(expected, got)
     assert any(name.startswith("sampling.proposal_networks.0") for name in expected_gradients)
     assert_same(expected_gradients, gradients)
+
+
+def relative_errors(got: Dict[str, torch.Tensor], expected: Dict[str, torch.Tensor]) -> Dict[str, float]:
+    assert got.keys() == expected.keys()
+    return {name: float((got[name] - expected[name]).norm() / expected[name].norm()) for name in expected
+            if expected[name].norm() > 0}
+
+
+def test_bfloat16_matmuls_stay_near_float32_and_hand_back_float32(eager_and_compiled: List[SSNeRFModel]) -> None:
+    """bfloat16 keeps 8 bits of mantissa: outputs and gradients move by about a percent, not more, and nothing in
+    bfloat16 leaks into rendering, losses or the optimizer."""
+    eager, _, mixed = eager_and_compiled
+    ray_samples = samples()
+    positions = ray_samples.frustums.get_positions()
+
+    def outputs(model: SSNeRFModel) -> Dict[str, torch.Tensor]:
+        return {**field_outputs(model, ray_samples), "proposal": model.sampling.density_fns[0](positions)}
+
+    expected, expected_gradients = outputs_and_gradients(eager, outputs)
+    got, gradients = outputs_and_gradients(mixed, outputs)
+    assert mixed.sampling.field_module.compiled_evaluate.compiled is not None, "compiling fell back to eager"
+    assert all(values.dtype == torch.float32 for values in [*got.values(), *gradients.values()])
+    output_errors, gradient_errors = relative_errors(got, expected), relative_errors(gradients, expected_gradients)
+    assert 0 < max(output_errors.values()) < 0.03, output_errors  # (0: autocast did nothing)
+    assert max(gradient_errors.values()) < 0.1, gradient_errors
+    assert {"sampling.field_module.encoder.mlp.model.0.hash_table", "sampling.proposal_networks.0.encoding.hash_table"
+            } <= {name for name, error in gradient_errors.items() if error > 0}
+
+
+@pytest.mark.parametrize("native, asked, in_bfloat16", [(True, True, True), (False, True, False),
+                                                         (True, False, False)])
+def test_bfloat16_matmuls_only_where_the_cpu_has_them(monkeypatch, native: bool, asked: bool,
+                                                      in_bfloat16: bool) -> None:
+    compiled_with = []
+    monkeypatch.setattr(ssnerf_model, "native_bfloat16", lambda: native)
+    monkeypatch.setattr(CompiledOrEager, "__init__", lambda self, function, label, bfloat16_matmuls=False:
+                        compiled_with.append(bfloat16_matmuls))
+    lite_model(bfloat16_matmuls=asked).get_training_callbacks(run_for(1000))
+    assert compiled_with == [in_bfloat16] * 2  # the field and the proposal network
 
 
 def test_evaluation_never_calls_the_compiled_field() -> None:
@@ -178,12 +224,12 @@ def test_a_failed_compile_runs_eagerly_with_one_line(monkeypatch, capsys) -> Non
 
 def test_configs_saved_before_compile_fields_existed_load_with_the_defaults() -> None:
     text = yaml.dump(SSNeRFModelConfig(properties=("semantics",)))
-    new_fields = ("compile_fields:", "compile_min_steps:")
+    new_fields = ("compile_fields:", "compile_min_steps:", "bfloat16_matmuls:")
     old = "\n".join(line for line in text.splitlines() if not line.startswith(new_fields))
     assert old != text
     config = yaml.load(old, Loader=yaml.Loader)
     assert isinstance(config, SSNeRFModelConfig) and config.properties == ("semantics",)
-    assert config.compile_fields is True and config.compile_min_steps == 300
+    assert config.compile_fields is True and config.compile_min_steps == 300 and config.bfloat16_matmuls is True
 
 
 # --------------------------------------------------------------------------------------------------- profiler

@@ -9,14 +9,38 @@ line says so and the function runs eagerly from then on.
 
 from __future__ import annotations
 
+import functools
 from typing import Callable, Generic, Optional, TypeVar
 
 import torch
 import torch._functorch.config
+from torch import Tensor
+from torch.utils._pytree import tree_map
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
 Output = TypeVar("Output")
+
+
+def native_bfloat16() -> bool:
+    """Whether this CPU multiplies bfloat16 matrices in hardware (AMX or AVX512-BF16). Elsewhere oneDNN emulates
+    bfloat16, which is slower than float32."""
+    return torch.cpu._is_amx_tile_supported() or torch.cpu._is_avx512_bf16_supported()
+
+
+def with_bfloat16_matmuls(function: Callable[..., Output]) -> Callable[..., Output]:
+    """`function` under CPU autocast: its matrix multiplications (and what follows them up to its return) in
+    bfloat16, as tiny-cuda-nn runs nerfstudio's MLPs in half precision on a GPU. Parameters stay float32 (autocast
+    casts copies) and so do the outputs: every floating tensor it returns is cast back to float32."""
+
+    @functools.wraps(function)
+    def run(*args, **kwargs) -> Output:
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            outputs = function(*args, **kwargs)
+        return tree_map(lambda value: value.float() if isinstance(value, Tensor) and value.is_floating_point()
+                        else value, outputs)
+
+    return run
 
 
 class CompiledOrEager(Generic[Output]):
@@ -27,10 +51,12 @@ class CompiledOrEager(Generic[Output]):
     Args:
         function: the tensor function to compile (its modules' parameters are inputs of the compiled graph).
         label: what it is, for the fallback's console line.
+        bfloat16_matmuls: run it with its matrix multiplications in bfloat16 (`with_bfloat16_matmuls`), compiled or
+            eager.
     """
 
-    def __init__(self, function: Callable[..., Output], label: str) -> None:
-        self.function = function
+    def __init__(self, function: Callable[..., Output], label: str, bfloat16_matmuls: bool = False) -> None:
+        self.function = with_bfloat16_matmuls(function) if bfloat16_matmuls else function
         self.label = label
         # No donated buffers (a memory saving of AOTAutograd, read when a backward is compiled, lazily): the loss
         # balancer differentiates one step's losses more than once (`retain_graph`), which they forbid.
@@ -38,7 +64,7 @@ class CompiledOrEager(Generic[Output]):
         self.compiled: Optional[Callable[..., Output]] = None
         """None after a failure: eager from then on."""
         try:  # one graph per input shape (a training run's shapes are fixed)
-            self.compiled = torch.compile(function, dynamic=False)
+            self.compiled = torch.compile(self.function, dynamic=False)
         except Exception as err:  # noqa: BLE001 - e.g. a Python version dynamo does not support
             self._fall_back(err)
 

@@ -275,10 +275,11 @@ class SSNeRFField(Field):
         raw_density, feature = self.encode(positions)
         return raw_density, self.outputs_from_feature(feature, directions, pose)
 
-    def compile_for_training(self) -> None:
-        """Run training forwards through `torch.compile` (`fields/compiled.py`); evaluation stays eager, so viewer
-        and render chunks of any size never wait for a compile. Parameters and state-dict keys are unchanged."""
-        self.compiled_evaluate = CompiledOrEager(self.evaluate, "the SS-NeRF field")
+    def compile_for_training(self, bfloat16_matmuls: bool = False) -> None:
+        """Run training forwards through `torch.compile` (`fields/compiled.py`), with the matrix multiplications in
+        bfloat16 if asked; evaluation stays eager, so viewer and render chunks of any size never wait for a compile.
+        Parameters and state-dict keys are unchanged."""
+        self.compiled_evaluate = CompiledOrEager(self.evaluate, "the SS-NeRF field", bfloat16_matmuls)
 
     def forward(self, ray_samples: RaySamples, compute_normals: bool = False) -> Dict[FieldHeadNames | str, Tensor]:
         compiled = getattr(self, "compiled_evaluate", None)

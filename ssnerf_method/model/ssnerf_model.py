@@ -38,6 +38,7 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.data.dataset import DEPTH_KEY
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY, add_pose_metadata
 from ssnerf_method.data.strokes import StrokeStore, WorldFrame
+from ssnerf_method.fields.compiled import native_bfloat16
 from ssnerf_method.fields.encoders import (
     HashGridEncoder,
     PositionalMLPEncoder,
@@ -166,6 +167,10 @@ class SSNeRFModelConfig(ModelConfig):
     the first step (less once inductor's cache in the temp folder holds it). Only in runs of at least
     `compile_min_steps` steps; where compiling fails, one console line and eager steps. Evaluation, the viewer and
     CUDA training stay eager."""
+    bfloat16_matmuls: bool = True
+    """With `compile_fields`, on a CPU that multiplies bfloat16 in hardware (AMX or AVX512-BF16; elsewhere it is
+    ignored): the compiled networks' matrix multiplications in bfloat16 (`torch.autocast`), as tiny-cuda-nn runs
+    nerfstudio's MLPs in half precision on a GPU. Parameters, hash tables, rendering and losses stay float32."""
     compile_min_steps: int = 300
     """Runs of fewer training steps (the trainer's `max_num_iterations`) stay eager: the compile would not pay off."""
     balance_ratio: Optional[float] = None
@@ -328,7 +333,7 @@ class SSNeRFModel(Model):
         trainer = getattr(training_callback_attributes, "trainer", None)
         run_steps = 0 if trainer is None else trainer.config.max_num_iterations
         if self.config.compile_fields and self.device.type == "cpu" and run_steps >= self.config.compile_min_steps:
-            self.sampling.compile_for_training()
+            self.sampling.compile_for_training(self.config.bfloat16_matmuls and native_bfloat16())
         callbacks = [
             TrainingCallback([TrainingCallbackLocation.BEFORE_TRAIN_ITERATION], self.sampling.before_training_step),
             TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN_ITERATION], self.sampling.after_training_step),

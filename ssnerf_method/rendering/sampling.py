@@ -83,11 +83,12 @@ class RaySampling(nn.Module):
         """Parameters by optimizer group name (the method config names an optimizer per group)."""
         return {"fields": list(self.parameters())}
 
-    def compile_for_training(self) -> None:
-        """Run the networks' training forwards (and backwards) through `torch.compile` (`fields/compiled.py`)."""
+    def compile_for_training(self, bfloat16_matmuls: bool = False) -> None:
+        """Run the networks' training forwards (and backwards) through `torch.compile` (`fields/compiled.py`), with
+        their matrix multiplications in bfloat16 if asked."""
         for module in self.modules():
             if isinstance(module, SSNeRFField):
-                module.compile_for_training()
+                module.compile_for_training(bfloat16_matmuls)
 
 
 class HierarchicalSampling(RaySampling):
@@ -165,11 +166,13 @@ class ProposalSampling(RaySampling):
     def after_training_step(self, step: int) -> None:
         self.sampler.step_cb(step)
 
-    def compile_for_training(self) -> None:
+    def compile_for_training(self, bfloat16_matmuls: bool = False) -> None:
         """The field's and each proposal network's training forwards through `torch.compile`."""
-        super().compile_for_training()
-        self.density_fns = [flat_density(CompiledOrEager(network.density_fn, f"proposal network {index}"))
-                            for index, network in enumerate(self.proposal_networks)]
+        super().compile_for_training(bfloat16_matmuls)
+        self.density_fns = [
+            flat_density(CompiledOrEager(network.density_fn, f"proposal network {index}", bfloat16_matmuls))
+            for index, network in enumerate(self.proposal_networks)
+        ]
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:
         return {

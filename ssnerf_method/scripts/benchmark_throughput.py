@@ -3,7 +3,7 @@
     python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 12] [--rays 1024] \
         [--time-budget 60] [--cases a b] [--rounds 3] [--threads 2] [--run-steps 1000]
 
-Six cases, all at the same rays per batch:
+Seven cases, all at the same rays per batch:
 
   (a) `ssnerf-lite`, all five properties, eager     (a)/(b): what the properties cost on the lite architecture
       (today's step: `compile_fields=False`)
@@ -13,8 +13,10 @@ Six cases, all at the same rays per batch:
   (e) (a) with nerfstudio's hash-grid lookup        (a)/(e): what the gathered lookup (`fields/encoders.py`) buys
       (`hash_lookup=nerfstudio`)
   (f) (a) with the field and proposal networks      (f)/(a): what compiling buys, steady and over a whole run with
-      compiled (`compile_fields=True`), from a cold        the compile counted (a fresh inductor cache and dynamo
-      compile cache every round                           state every round: what a first run on a machine pays)
+      compiled (`compile_fields=True`,                     the compile counted (a fresh inductor cache and dynamo
+      `bfloat16_matmuls=False`), from a cold compile       state every round: what a first run on a machine pays)
+  (g) (f) with bfloat16 matmuls (the default where     (g)/(f): what bfloat16 buys; (g)/(a): today's default
+      the CPU has them in hardware)                         training step against the eager float32 one
 
 Each case builds its pipeline and optimizers straight from the method config (no Trainer, no viewer, no logging),
 runs `--warmup` training steps (timed apart: they hold the compile) and then times `--steps` steps: loss dict, summed
@@ -56,6 +58,7 @@ from nerfstudio.engine.optimizers import Optimizers
 from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.fields.compiled import native_bfloat16
 from ssnerf_method.method_configs import ssnerf_config, ssnerf_lite_config
 from ssnerf_method.properties import OPTIONAL_PROPERTIES
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
@@ -81,7 +84,7 @@ class BenchmarkConfig:
     the budget."""
     min_steps: int = 3
     """Fewest timed steps per case when the time budget cuts timing short."""
-    cases: Tuple[Literal["a", "b", "c", "d", "e", "f"], ...] = ("a", "b", "c", "d", "e", "f")
+    cases: Tuple[Literal["a", "b", "c", "d", "e", "f", "g"], ...] = ("a", "b", "c", "d", "e", "f", "g")
     """Cases to run (a ratio is printed when both of its cases ran)."""
     rounds: int = 1
     """Times every case is timed, the cases taking turns (a b a b ...), so that a drift in the machine's speed (which
@@ -352,9 +355,15 @@ def run(config: BenchmarkConfig) -> Dict:
                  list(OPTIONAL_PROPERTIES),
                  lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
                                       hash_lookup="nerfstudio", compile_fields=False)),
-            Case("f", "ssnerf-lite, all properties, compiled (cold)", "ssnerf-lite", list(OPTIONAL_PROPERTIES),
+            Case("f", "ssnerf-lite, all properties, compiled (cold), float32", "ssnerf-lite",
+                 list(OPTIONAL_PROPERTIES),
                  lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
-                                      compile_fields=True), cold_compile, compiles=True),
+                                      compile_fields=True, bfloat16_matmuls=False), cold_compile, compiles=True),
+            Case("g", "ssnerf-lite, all properties, compiled (cold), bfloat16 matmuls"
+                 + ("" if native_bfloat16() else " (not native here: float32)"), "ssnerf-lite",
+                 list(OPTIONAL_PROPERTIES),
+                 lambda: _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES,
+                                      compile_fields=True, bfloat16_matmuls=True), cold_compile, compiles=True),
         ]
         load_before = _load_average()
         rounds: Dict[str, List[CaseResult]] = {}
@@ -383,12 +392,13 @@ def run(config: BenchmarkConfig) -> Dict:
     load_after = _load_average()
     ratios = {
         f"{num}/{den}": results[num].rays_per_second / results[den].rays_per_second
-        for num, den in (("a", "b"), ("d", "c"), ("a", "e"), ("f", "a"))
+        for num, den in (("a", "b"), ("d", "c"), ("a", "e"), ("f", "a"), ("g", "f"), ("g", "a"))
         if num in results and den in results
     }
-    run_ratio = None
-    if "f" in results and "a" in results:
-        run_ratio = results["a"].run_seconds(config.run_steps) / results["f"].run_seconds(config.run_steps)
+    run_ratios = {
+        f"{num}/a": results["a"].run_seconds(config.run_steps) / results[num].run_seconds(config.run_steps)
+        for num in ("f", "g") if num in results and "a" in results
+    }
     print()
     print(format_table(results, config.run_steps))
     print()
@@ -398,9 +408,14 @@ def run(config: BenchmarkConfig) -> Dict:
         print(f"(d)/(c) ssnerf all properties / vanilla-nerf ({samples} samples/ray): {ratios['d/c']:.3f}x throughput")
     if "a/e" in ratios:
         print(f"(a)/(e) ssnerf-lite gathered / nerfstudio's hash lookup:    {ratios['a/e']:.3f}x throughput")
-    if "f/a" in ratios and run_ratio is not None:
+    if "f/a" in ratios:
         print(f"(f)/(a) ssnerf-lite compiled / eager:                       {ratios['f/a']:.3f}x throughput, "
-              f"{run_ratio:.3f}x steps per second over a {config.run_steps}-step run, compile included")
+              f"{run_ratios['f/a']:.3f}x steps per second over a {config.run_steps}-step run, compile included")
+    if "g/f" in ratios:
+        print(f"(g)/(f) ssnerf-lite compiled, bfloat16 / float32 matmuls:   {ratios['g/f']:.3f}x throughput")
+    if "g/a" in ratios:
+        print(f"(g)/(a) ssnerf-lite compiled with bfloat16 / eager:         {ratios['g/a']:.3f}x throughput, "
+              f"{run_ratios['g/a']:.3f}x steps per second over a {config.run_steps}-step run, compile included")
     busy = [load for load in (load_before, load_after) if load is not None and load > (os.cpu_count() or 1) + 0.5]
     print(f"torch threads: {torch.get_num_threads()}; 1-min load average {load_before} before / {load_after} after on "
           f"{os.cpu_count()} cores")
@@ -423,7 +438,7 @@ def run(config: BenchmarkConfig) -> Dict:
         "cases": {key: result.to_dict(config.run_steps) for key, result in results.items()},
         "ms_per_step_by_round": {key: [result.ms_per_step for result in timed] for key, timed in rounds.items()},
         "ratios": ratios,
-        "run_ratio_f_over_a": run_ratio,
+        "run_ratios": run_ratios,
     }
     if config.output is not None:
         config.output.parent.mkdir(parents=True, exist_ok=True)
