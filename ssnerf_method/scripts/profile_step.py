@@ -10,7 +10,8 @@ runs `--warmup` untimed steps, then profiles `--steps` steps with `torch.profile
 - the self CPU time by kind of operation (hash-grid gathers and their scatter backward, matmuls, elementwise,
   reductions and scans, copies and concatenation, ...), split into forward, backward and optimizer, and the top ops;
 - the arithmetic of one step (`torch.utils.flop_counter.FlopCounterMode`: matmuls, forward and backward), the
-  machine's measured fp32 matmul peak at the same threads, and the ratio of the two rates.
+  machine's measured matmul peak at the same threads (in bfloat16 when the compiled networks multiply in it), and the
+  ratio of the two rates.
 
 With the field compiled (`--compile True`, the method's default in CPU runs of 300+ steps) the field is one compiled
 region, reported as one stage; the warm-up (12 steps) holds every compile (step 10 is the first whose proposal networks
@@ -42,6 +43,7 @@ from torch.utils.flop_counter import FlopCounterMode
 from nerfstudio.field_components.encodings import HashEncoding
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.fields.compiled import native_bfloat16
 from ssnerf_method.method_configs import ssnerf_lite_config
 from ssnerf_method.properties import OPTIONAL_PROPERTIES
 from ssnerf_method.scripts.benchmark_throughput import STAGE_PREFIX, TrainingStep, _ssnerf_case, prepare_data
@@ -273,9 +275,9 @@ def step_flops(train_step: TrainingStep, step: int) -> Tuple[int, Dict[str, int]
     return total, by_module
 
 
-def matmul_peak(size: int, repeats: int = 10) -> float:
-    """The best GFLOP/s of a `size`-square fp32 matmul at the current thread count."""
-    a, b = torch.randn(size, size), torch.randn(size, size)
+def matmul_peak(size: int, repeats: int = 10, dtype: torch.dtype = torch.float32) -> float:
+    """The best GFLOP/s of a `size`-square matmul in `dtype` at the current thread count."""
+    a, b = torch.randn(size, size, dtype=dtype), torch.randn(size, size, dtype=dtype)
     torch.mm(a, b)  # warm-up
     best = float("inf")
     for _ in range(repeats):
@@ -351,7 +353,7 @@ def markdown(report: Dict) -> str:
         "## Arithmetic against the machine's peak",
         "",
         f"- FLOPs per step (matmuls, forward and backward, `FlopCounterMode`): **{arithmetic['gflop']:.2f} GFLOP**",
-        f"- fp32 matmul peak, {report['peak_size']}-square at {report['threads']} threads: "
+        f"- {report['peak_dtype']} matmul peak, {report['peak_size']}-square at {report['threads']} threads: "
         f"**{arithmetic['peak_gflops']:.0f} GFLOP/s**",
         f"- achieved over the whole step: {arithmetic['achieved_gflops']:.1f} GFLOP/s = "
         f"**{100 * arithmetic['achieved_fraction']:.1f}% of peak**",
@@ -374,6 +376,7 @@ def run(config: ProfileStepConfig) -> Dict:
         model = {} if config.compile is None else {"compile_fields": config.compile}
         trainer = _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES, **model)
         compiled = getattr(trainer.pipeline.model, "compile_fields", False)
+        bfloat16 = compiled and trainer.pipeline.model.bfloat16_matmuls and native_bfloat16()
         train_step = TrainingStep(trainer)
         load_before = _load()
         CONSOLE.print(f"{config.warmup} warm-up steps at {config.threads} threads ...")
@@ -397,7 +400,8 @@ def run(config: ProfileStepConfig) -> Dict:
         step_profile = StepProfile.from_profile(prof, config.steps, wall, config.top)
         flops, by_module = step_flops(train_step, first + config.steps)
         load_after = _load()
-    peak = matmul_peak(config.peak_size)
+    peak_dtype = torch.bfloat16 if bfloat16 else torch.float32
+    peak = matmul_peak(config.peak_size, dtype=peak_dtype)
     matmul_ms = sum(step_profile.categories_ms.get("matmul (MLPs)", {}).values())
     seconds = unprofiled_ms / 1e3
     arithmetic = {
@@ -414,7 +418,9 @@ def run(config: ProfileStepConfig) -> Dict:
         "rays": config.rays,
         "properties": list(OPTIONAL_PROPERTIES),
         "compiled": bool(compiled),
-        "compiled_label": "field and proposal networks compiled" if compiled else "eager",
+        "compiled_label": ("eager" if not compiled else "field and proposal networks compiled"
+                           + (", bfloat16 matmuls" if bfloat16 else "")),
+        "peak_dtype": str(peak_dtype).removeprefix("torch."),
         "torch": torch.__version__,
         "threads": config.threads,
         "cpu_count": os.cpu_count(),
