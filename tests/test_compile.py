@@ -20,7 +20,7 @@ from nerfstudio.cameras.rays import Frustums, RaySamples
 from nerfstudio.engine.callbacks import TrainingCallbackAttributes
 from nerfstudio.field_components.field_heads import FieldHeadNames
 
-from ssnerf_method.fields.compiled import CompiledOrEager
+from ssnerf_method.fields.compiled import CompiledOrEager, native_bfloat16
 from ssnerf_method.method_configs import ssnerf_lite_config
 from ssnerf_method.model import ssnerf_model
 from ssnerf_method.model.ssnerf_model import SSNeRFModel, SSNeRFModelConfig
@@ -157,6 +157,18 @@ def test_bfloat16_matmuls_stay_near_float32_and_hand_back_float32(eager_and_comp
     assert max(gradient_errors.values()) < 0.1, gradient_errors
     assert {"sampling.field_module.encoder.mlp.model.0.hash_table", "sampling.proposal_networks.0.encoding.hash_table"
             } <= {name for name, error in gradient_errors.items() if error > 0}
+
+
+@pytest.mark.parametrize("amx, avx512_bf16, native", [(True, False, True), (False, True, True), (False, False, False),
+                                                      (None, None, False)])
+def test_native_bfloat16_reads_the_cpu_probes(monkeypatch, amx, avx512_bf16, native: bool) -> None:
+    """Either instruction set counts; a torch without the (private) probes counts as neither."""
+    for name, value in (("_is_amx_tile_supported", amx), ("_is_avx512_bf16_supported", avx512_bf16)):
+        if value is None:
+            monkeypatch.delattr(torch.cpu, name)
+        else:
+            monkeypatch.setattr(torch.cpu, name, lambda value=value: value)
+    assert native_bfloat16() is native
 
 
 @pytest.mark.parametrize("native, asked, in_bfloat16", [(True, True, True), (False, True, False),

@@ -24,8 +24,9 @@ Output = TypeVar("Output")
 
 def native_bfloat16() -> bool:
     """Whether this CPU multiplies bfloat16 matrices in hardware (AMX or AVX512-BF16). Elsewhere oneDNN emulates
-    bfloat16, which is slower than float32."""
-    return torch.cpu._is_amx_tile_supported() or torch.cpu._is_avx512_bf16_supported()
+    bfloat16, which is slower than float32. (torch's probes are private: a torch without them counts as no.)"""
+    probes = (getattr(torch.cpu, name, None) for name in ("_is_amx_tile_supported", "_is_avx512_bf16_supported"))
+    return any(probe is not None and probe() for probe in probes)
 
 
 def with_bfloat16_matmuls(function: Callable[..., Output]) -> Callable[..., Output]:
