@@ -14,12 +14,12 @@ from typing import Optional
 import torch
 
 from nerfstudio.configs.base_config import MachineConfig, ViewerConfig
-from nerfstudio.engine.optimizers import AdamOptimizerConfig
 from nerfstudio.engine.schedulers import ExponentialDecaySchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.plugins.types import MethodSpecification
 
 from ssnerf_method.data.datamanager import SSNeRFDataManagerConfig
+from ssnerf_method.engine.optimizers import FusedAdamOptimizerConfig
 from ssnerf_method.engine.trainer import SSNeRFTrainerConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 from ssnerf_method.pipelines.ssnerf_pipeline import SSNeRFPipelineConfig
@@ -51,7 +51,7 @@ ssnerf_config = SSNeRFTrainerConfig(
     ),
     optimizers={
         "fields": {
-            "optimizer": AdamOptimizerConfig(lr=5e-4, eps=1e-8),
+            "optimizer": FusedAdamOptimizerConfig(lr=5e-4, eps=1e-8),
             # The authors decay by 0.1 over 250k steps: 5e-4 -> 5e-5.
             "scheduler": ExponentialDecaySchedulerConfig(lr_final=5e-5, max_steps=250000),
         },
@@ -110,11 +110,11 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
     ),
     optimizers={
         "proposal_networks": {
-            "optimizer": AdamOptimizerConfig(lr=1e-2, eps=1e-15),
+            "optimizer": FusedAdamOptimizerConfig(lr=1e-2, eps=1e-15),
             "scheduler": ExponentialDecaySchedulerConfig(lr_final=1e-4, max_steps=30000),
         },
         "fields": {
-            "optimizer": AdamOptimizerConfig(lr=1e-2, eps=1e-15),
+            "optimizer": FusedAdamOptimizerConfig(lr=1e-2, eps=1e-15),
             "scheduler": ExponentialDecaySchedulerConfig(lr_final=1e-4, max_steps=30000),
         },
     },
