@@ -26,7 +26,7 @@ from ssnerf_method.model import ssnerf_model
 from ssnerf_method.model.ssnerf_model import SSNeRFModel, SSNeRFModelConfig
 from ssnerf_method.properties import OPTIONAL_PROPERTIES
 from ssnerf_method.scripts import profile_step
-from ssnerf_method.scripts.benchmark_throughput import TrainingStep, _ssnerf_case
+from ssnerf_method.scripts.benchmark_throughput import CaseResult, TrainingStep, _ssnerf_case
 
 from test_rendering import tiny_model
 
@@ -290,3 +290,14 @@ def test_the_benchmark_step_compiles_as_a_long_run_does(tiny_dataset: Path) -> N
     assert getattr(field, "compiled_evaluate", None) is not None
     eager = TrainingStep(_ssnerf_case(ssnerf_lite_config, tiny_dataset, 32, OPTIONAL_PROPERTIES, compile_fields=False))
     assert getattr(eager.pipeline.model.sampling.field_module, "compiled_evaluate", None) is None
+
+
+def test_a_compiled_runs_time_counts_inductors_start_once() -> None:
+    """`benchmark_throughput`'s run estimate: inductor's start in a fresh process, the warm-up, then the timed rate."""
+    eager = CaseResult("a", "eager", "ssnerf-lite", [], 1024, steps=10, seconds=4.0, warmup_steps=12,
+                       warmup_seconds=6.0)
+    compiled = CaseResult("g", "compiled", "ssnerf-lite", [], 1024, steps=10, seconds=2.0, warmup_steps=12,
+                          warmup_seconds=30.0, startup_seconds=12.0)
+    assert eager.run_seconds(1000) == pytest.approx(6.0 + 988 * 0.4)
+    assert compiled.run_seconds(1000) == pytest.approx(12.0 + 30.0 + 988 * 0.2)
+    assert compiled.to_dict(1000)["startup_seconds"] == 12.0

@@ -22,9 +22,11 @@ Each case builds its pipeline and optimizers straight from the method config (no
 runs `--warmup` training steps (timed apart: they hold the compile) and then times `--steps` steps: loss dict, summed
 loss, backward, optimizer and scheduler step, zero_grad, plus the model's before/after-iteration training callbacks,
 as the Trainer does. Rays/s = rays per batch x timed steps / seconds. A `--run-steps` run's time is the warm-up's
-seconds plus the remaining steps at the timed rate: compile time included. With `--threads N` torch runs N threads
-(else it is left as it is). With `--rounds N` the cases take turns N times and each reports its median round, so a
-ratio compares cases timed in the same minutes.
+seconds plus the remaining steps at the timed rate: compile time included, and for the compiled cases also what the
+first compile in a fresh process costs once (inductor's import and workers, measured before the cases: without it
+only the first compiled case of round 1 would pay it, and the median round hides it). With `--threads N` torch runs N
+threads (else it is left as it is). With `--rounds N` the cases take turns N times and each reports its median round,
+so a ratio compares cases timed in the same minutes.
 
 (c) and (d) (8x256 MLPs, 64 + 64 samples per ray) take ~10 s per step on 2 CPU cores, so each case's timing stops
 once `--time-budget` seconds are spent (after at least `--min-steps` steps); the table shows the steps timed.
@@ -114,6 +116,8 @@ class CaseResult:
     warmup_steps: int = 0
     warmup_seconds: float = 0.0
     """Seconds of the warm-up steps (compilation included)."""
+    startup_seconds: float = 0.0
+    """What a compiling run pays once per process besides its own compile (`inductor_startup_seconds`)."""
 
     @property
     def ms_per_step(self) -> float:
@@ -124,8 +128,10 @@ class CaseResult:
         return self.rays_per_batch * self.steps / self.seconds
 
     def run_seconds(self, run_steps: int) -> float:
-        """Seconds of a `run_steps`-step run: the warm-up as measured, then the timed rate."""
-        return self.warmup_seconds + max(run_steps - self.warmup_steps, 0) * self.seconds / self.steps
+        """Seconds of a `run_steps`-step run: inductor's start in a fresh process (compiling cases), the warm-up as
+        measured, then the timed rate."""
+        return (self.startup_seconds + self.warmup_seconds
+                + max(run_steps - self.warmup_steps, 0) * self.seconds / self.steps)
 
     def to_dict(self, run_steps: int = 1000) -> Dict:
         return {
@@ -133,6 +139,7 @@ class CaseResult:
             "rays_per_batch": self.rays_per_batch, "steps": self.steps, "seconds": self.seconds,
             "ms_per_step": self.ms_per_step, "rays_per_second": self.rays_per_second,
             "warmup_steps": self.warmup_steps, "warmup_seconds": self.warmup_seconds,
+            "startup_seconds": self.startup_seconds,
             "run_steps": run_steps, "run_seconds": self.run_seconds(run_steps),
         }
 
@@ -307,6 +314,24 @@ def cold_compile() -> Iterator[None]:
     torch._dynamo.reset()
 
 
+def inductor_startup_seconds() -> float:
+    """What the first compile in a process costs besides compiling: importing inductor and starting its compile
+    workers. Every `ns-train` that compiles pays it once; in this benchmark only the first compiling case of the first
+    round would, so it is measured here, before any case (a tiny function compiled cold twice: the first time less the
+    second), and added to every compiling case's run."""
+    def tiny(x: torch.Tensor) -> torch.Tensor:
+        return (x.sin() * 2.0).sum()
+
+    seconds = []
+    for _ in range(2):
+        with cold_compile():
+            start = time.perf_counter()
+            x = torch.randn(64, requires_grad=True)
+            torch.compile(tiny, dynamic=False)(x).backward()
+            seconds.append(time.perf_counter() - start)
+    return max(seconds[0] - seconds[1], 0.0)
+
+
 def _load_average() -> Optional[float]:
     try:
         return round(os.getloadavg()[0], 2)
@@ -366,6 +391,11 @@ def run(config: BenchmarkConfig) -> Dict:
                                       compile_fields=True, bfloat16_matmuls=True), cold_compile, compiles=True),
         ]
         load_before = _load_average()
+        startup = 0.0
+        if any(case.compiles and case.key in config.cases for case in cases):
+            startup = inductor_startup_seconds()
+            CONSOLE.print(f"inductor's start in this process (import, compile workers): {startup:.1f} s, added to "
+                          "every compiled case's run")
         rounds: Dict[str, List[CaseResult]] = {}
         for round_index in range(config.rounds):
             for case in cases:
@@ -379,7 +409,7 @@ def run(config: BenchmarkConfig) -> Dict:
                         cut_warmup=not case.compiles,
                     )
                 result = CaseResult(case.key, case.label, case.method, case.properties, config.rays, steps, seconds,
-                                    warmup_steps, warmup_seconds)
+                                    warmup_steps, warmup_seconds, startup if case.compiles else 0.0)
                 rounds.setdefault(case.key, []).append(result)
                 gc.collect()  # the case's pipeline went with time_training's frame; free its memory before the next
                 if torch.cuda.is_available():
