@@ -59,6 +59,7 @@ class CompiledOrEager(Generic[Output]):
     def __init__(self, function: Callable[..., Output], label: str, bfloat16_matmuls: bool = False) -> None:
         self.function = with_bfloat16_matmuls(function) if bfloat16_matmuls else function
         self.label = label
+        self.bfloat16_matmuls = bfloat16_matmuls
         # No donated buffers (a memory saving of AOTAutograd, read when a backward is compiled, lazily): the loss
         # balancer differentiates one step's losses more than once (`retain_graph`), which they forbid.
         torch._functorch.config.donated_buffer = False

@@ -43,7 +43,6 @@ from torch.utils.flop_counter import FlopCounterMode
 from nerfstudio.field_components.encodings import HashEncoding
 from nerfstudio.utils.rich_utils import CONSOLE
 
-from ssnerf_method.fields.compiled import native_bfloat16
 from ssnerf_method.method_configs import ssnerf_lite_config
 from ssnerf_method.properties import OPTIONAL_PROPERTIES
 from ssnerf_method.scripts.benchmark_throughput import STAGE_PREFIX, TrainingStep, _ssnerf_case, prepare_data
@@ -376,7 +375,6 @@ def run(config: ProfileStepConfig) -> Dict:
         model = {} if config.compile is None else {"compile_fields": config.compile}
         trainer = _ssnerf_case(ssnerf_lite_config, data, config.rays, OPTIONAL_PROPERTIES, **model)
         compiled = getattr(trainer.pipeline.model, "compile_fields", False)
-        bfloat16 = compiled and trainer.pipeline.model.bfloat16_matmuls and native_bfloat16()
         train_step = TrainingStep(trainer)
         load_before = _load()
         CONSOLE.print(f"{config.warmup} warm-up steps at {config.threads} threads ...")
@@ -390,6 +388,9 @@ def run(config: ProfileStepConfig) -> Dict:
             train_step(step)
             seconds.append(time.perf_counter() - start)
         unprofiled_ms = 1e3 * sorted(seconds)[(timed - 1) // 2]  # the median step: a shared machine's spikes aside
+        # what the warm-up's compile chose (the model asks for bfloat16 only where the CPU has it)
+        field = getattr(train_step.pipeline.model.sampling, "field_module", None)
+        bfloat16 = bool(getattr(getattr(field, "compiled_evaluate", None), "bfloat16_matmuls", False))
         CONSOLE.print(f"profiling {config.steps} steps ...")
         first = config.warmup + timed
         with stage_ranges(train_step), profile(activities=[ProfilerActivity.CPU]) as prof:
