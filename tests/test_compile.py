@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import copy
 import json
+import os
+import subprocess
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Dict, List
@@ -26,7 +28,16 @@ from ssnerf_method.model import ssnerf_model
 from ssnerf_method.model.ssnerf_model import SSNeRFModel, SSNeRFModelConfig
 from ssnerf_method.properties import OPTIONAL_PROPERTIES
 from ssnerf_method.scripts import profile_step
-from ssnerf_method.scripts.benchmark_throughput import CaseResult, TrainingStep, _ssnerf_case
+from ssnerf_method.scripts.benchmark_throughput import (
+    BenchmarkConfig,
+    CaseResult,
+    TrainingStep,
+    _ssnerf_case,
+    reference_command,
+    reference_env,
+    reference_result,
+    reference_worktree,
+)
 
 from test_rendering import tiny_model
 
@@ -301,3 +312,28 @@ def test_a_compiled_runs_time_counts_inductors_start_once() -> None:
     assert eager.run_seconds(1000) == pytest.approx(6.0 + 988 * 0.4)
     assert compiled.run_seconds(1000) == pytest.approx(12.0 + 30.0 + 988 * 0.2)
     assert compiled.to_dict(1000)["startup_seconds"] == 12.0
+
+
+def test_the_reference_case_runs_another_revisions_own_benchmark(tmp_path: Path) -> None:
+    """`--reference REV`: a detached worktree of REV (removed afterwards), its own benchmark's case (a) with only the
+    options every revision knows, its package ahead of the installed one, and its timed rate as case (r), whose run
+    estimate leaves its warm-up out. An unknown revision ends in one line naming it."""
+    config = BenchmarkConfig(steps=7, warmup=3, rays=256, threads=2)
+    command = reference_command(config, Path("scene"), tmp_path / "r.json")
+    assert command[1:3] == ["-m", "ssnerf_method.scripts.benchmark_throughput"]
+    assert {"--cases", "--steps", "--warmup", "--rays", "--output"} <= set(command)
+    assert command[command.index("--cases") + 1] == "a" and "--threads" not in command
+    env = reference_env(tmp_path, 2)
+    assert env["PYTHONPATH"].split(os.pathsep)[0] == str(tmp_path) and env["OMP_NUM_THREADS"] == "2"
+    timed = {"method": "ssnerf-lite", "properties": ["edges"], "rays_per_batch": 256, "steps": 7, "seconds": 3.5}
+    result = reference_result({"cases": {"a": timed}}, "abc123")
+    assert (result.key, result.ms_per_step, result.run_seconds(1000)) == ("r", pytest.approx(500.0),
+                                                                         pytest.approx(500.0))
+    if subprocess.run(["git", "-C", str(Path(__file__).parent), "rev-parse", "HEAD"], capture_output=True).returncode:
+        pytest.skip("not a git checkout")
+    with reference_worktree("HEAD") as worktree:
+        assert (worktree / "ssnerf_method" / "scripts" / "benchmark_throughput.py").is_file()
+    assert not worktree.exists()
+    with pytest.raises(SystemExit, match="no-such-revision.*name a commit"):
+        with reference_worktree("no-such-revision"):
+            pass

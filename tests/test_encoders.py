@@ -11,6 +11,7 @@ from torch.profiler import profile
 
 from nerfstudio.field_components.encodings import HashEncoding
 
+from ssnerf_method.fields import encoders
 from ssnerf_method.fields.encoders import GatheredHashEncoding, GatherRows, add_rows, gather_hash_lookups
 from ssnerf_method.fields.ssnerf_field import SSNeRFField
 
@@ -73,6 +74,27 @@ def test_gathered_rows_backward_is_one_serial_sum_also_when_compiled() -> None:
         compiled(table, index).backward()
     torch.testing.assert_close(table.grad, expected)
     assert any(event.name == "ssnerf::add_rows" for event in trace.events())
+
+
+def test_add_rows_sums_its_columns_on_two_threads_only_where_torch_has_two(monkeypatch: pytest.MonkeyPatch) -> None:
+    """With one torch thread `add_rows` stays on the calling thread; with two it hands the second column to its worker
+    thread. Either way every column is one serial sum, so the two give the same bits."""
+    generator = torch.Generator().manual_seed(3)
+    index = torch.randint(0, 50, (20000,), generator=generator)
+    values = torch.randn(20000, 3, generator=generator)
+    threads = torch.get_num_threads()
+    monkeypatch.setattr(encoders, "_column_worker", None)
+    try:
+        torch.set_num_threads(1)
+        alone = add_rows(index, values, 64)
+        assert encoders._column_worker is None
+        torch.set_num_threads(2)
+        shared = add_rows(index, values, 64)
+        assert encoders._column_worker is not None
+    finally:
+        torch.set_num_threads(threads)
+    assert torch.equal(alone, shared)
+    torch.testing.assert_close(shared, torch.zeros(64, 3).index_add_(0, index, values))
 
 
 @pytest.mark.parametrize("lookup, expected", [("gathered", GatheredHashEncoding), ("nerfstudio", HashEncoding)])

@@ -7,7 +7,8 @@ Both take positions already contracted into [-2, 2] by the field.
 
 from __future__ import annotations
 
-from typing import Literal, Tuple
+from concurrent.futures import ThreadPoolExecutor
+from typing import Literal, Optional, Tuple
 
 import torch
 from jaxtyping import Float, Int
@@ -84,18 +85,45 @@ _HASH_PRIMES = (1, 2654435761, 805459861)
 """Instant-NGP's spatial hash primes, as `HashEncoding.hash_fn` multiplies the three axes by them."""
 
 
+_column_worker: Optional[ThreadPoolExecutor] = None
+"""One thread that sums `add_rows`' second column while the calling thread sums the first (made on first use)."""
+
+
+def _sum_columns_in_parallel(columns: int) -> bool:
+    """Whether `add_rows` sums the columns on two threads: only where torch may use more than one, so that a run
+    told to use one thread (one of several training side by side) keeps to one core."""
+    return columns > 1 and torch.get_num_threads() > 1
+
+
 @torch.library.custom_op("ssnerf::add_rows", mutates_args=())
 def add_rows(index: Tensor, values: Tensor, rows: int) -> Tensor:
     """`rows` zero rows with each row of `values` added at its `index` (the backward of a row gather).
 
-    On a CPU the sum runs serially (`torch.bincount` per column), which is also deterministic. As a custom op it is
-    opaque to inductor, which would compile the scatter into a parallel loop of atomic adds: on a hash grid's table
-    those contend for the coarse levels' few cells, which every sample reads (an inductor kernel profile of the
-    compiled step put about 175 ms of a 400 ms step there; CHANGELOG, 2026-12-05)."""
+    On a CPU the sum runs serially per column (`torch.bincount`), which is also deterministic; where torch has more
+    than one thread, the first column on this thread and the rest on one worker thread (a hash grid's two features
+    per level: about 10 ms less of a 210 ms compiled step at 2 threads; CHANGELOG, 2026-12-05 night). As a custom op
+    it is opaque to inductor, which would compile the scatter into a parallel loop of atomic adds: on a hash grid's
+    table those contend for the coarse levels' few cells, which every sample reads (an inductor kernel profile of
+    the compiled step put about 175 ms of a 400 ms step there; CHANGELOG, 2026-12-05)."""
     if values.device.type != "cpu":
         return values.new_zeros(rows, values.shape[-1]).index_add_(0, index, values)
-    columns = [torch.bincount(index, weights=values[:, column], minlength=rows) for column in range(values.shape[-1])]
-    return torch.stack(columns, dim=-1).to(values.dtype)  # (an empty index gives int64 zeros)
+    summed = values.new_empty(rows, values.shape[-1])
+
+    def add_column(column: int) -> None:  # (bincount gives int64 zeros for an empty index: copy_ casts)
+        summed[:, column].copy_(torch.bincount(index, weights=values[:, column], minlength=rows))
+
+    global _column_worker
+    if _sum_columns_in_parallel(values.shape[-1]):
+        if _column_worker is None:
+            _column_worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ssnerf-add-rows")
+        rest = [_column_worker.submit(add_column, column) for column in range(1, values.shape[-1])]
+        add_column(0)
+        for future in rest:
+            future.result()
+    else:
+        for column in range(values.shape[-1]):
+            add_column(column)
+    return summed
 
 
 @add_rows.register_fake

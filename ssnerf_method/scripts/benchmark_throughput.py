@@ -1,7 +1,7 @@
 """Training throughput (rays/s) of SS-NeRF against RGB-only SS-NeRF and nerfstudio's vanilla NeRF, in one run.
 
     python -m ssnerf_method.scripts.benchmark_throughput [--data DIR] [--steps 30] [--warmup 12] [--rays 1024] \
-        [--time-budget 60] [--cases a b] [--rounds 3] [--threads 2] [--run-steps 1000]
+        [--time-budget 60] [--cases a b] [--rounds 3] [--threads 2] [--run-steps 1000] [--reference REV]
 
 Seven cases, all at the same rays per batch:
 
@@ -28,6 +28,11 @@ only the first compiled case of round 1 would pay it, and the median round hides
 threads (else it is left as it is). With `--rounds N` the cases take turns N times and each reports its median round,
 so a ratio compares cases timed in the same minutes.
 
+With `--reference REV` (a git revision, such as the commit an issue's "today" was measured at) each round also times
+(r): that revision's own case (a), run by its own `benchmark_throughput` in a subprocess from a temporary git worktree
+of it, over the same data and threads. Its run estimate is its timed rate alone (its warm-up uncounted), so a ratio
+against it errs low.
+
 (c) and (d) (8x256 MLPs, 64 + 64 samples per ray) take ~10 s per step on 2 CPU cores, so each case's timing stops
 once `--time-budget` seconds are spent (after at least `--min-steps` steps); the table shows the steps timed.
 """
@@ -40,6 +45,8 @@ import functools
 import gc
 import json
 import os
+import subprocess
+import sys
 import tempfile
 import time
 from dataclasses import dataclass
@@ -98,6 +105,8 @@ class BenchmarkConfig:
     """Length of the training run whose time (warm-up, compile included, then the timed rate) each case reports."""
     output: Optional[Path] = None
     """Optional JSON file to save the numbers to."""
+    reference: Optional[str] = None
+    """A git revision of this repository whose case (a) is timed too, each round, as case (r) (see above)."""
 
     def __post_init__(self) -> None:
         if self.rounds < 1:
@@ -332,6 +341,64 @@ def inductor_startup_seconds() -> float:
     return max(seconds[0] - seconds[1], 0.0)
 
 
+def reference_command(config: BenchmarkConfig, data: Path, output: Path) -> List[str]:
+    """The command that times case (a) with another revision's `benchmark_throughput`, run in that revision's
+    worktree. Only options every revision's benchmark knows; threads through OMP_NUM_THREADS (`reference_env`)."""
+    return [sys.executable, "-m", "ssnerf_method.scripts.benchmark_throughput", "--data", str(data.resolve()),
+            "--cases", "a", "--steps", str(config.steps), "--warmup", str(config.warmup), "--rays", str(config.rays),
+            "--time-budget", str(config.time_budget), "--output", str(output)]
+
+
+def reference_env(worktree: Path, threads: Optional[int]) -> Dict[str, str]:
+    """The environment of a `reference_command`: the worktree's `ssnerf_method` ahead of the installed one."""
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(worktree)] + ([env["PYTHONPATH"]] if env.get("PYTHONPATH") else []))
+    if threads is not None:
+        env["OMP_NUM_THREADS"] = str(threads)
+    return env
+
+
+def reference_result(report: Dict, revision: str) -> CaseResult:
+    """Case (r) from the JSON report of another revision's case (a)."""
+    timed = report["cases"]["a"]
+    return CaseResult("r", f"ssnerf-lite, all properties, as of {revision}", timed["method"], timed["properties"],
+                      timed["rays_per_batch"], timed["steps"], timed["seconds"])
+
+
+@contextlib.contextmanager
+def reference_worktree(revision: str) -> Iterator[Path]:
+    """A temporary detached git worktree of `revision` of the repository this file is in, removed afterwards."""
+    here = Path(__file__).resolve().parent
+    try:
+        top = subprocess.run(["git", "-C", str(here), "rev-parse", "--show-toplevel"], check=True, text=True,
+                             capture_output=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError) as err:
+        raise SystemExit(f"--reference {revision}: {here} is not in a git checkout ({err}); run the benchmark from a "
+                         "clone of the repository") from None
+    with tempfile.TemporaryDirectory(prefix="ssnerf_reference_") as tmp:
+        worktree = Path(tmp) / "tree"
+        made = subprocess.run(["git", "-C", top, "worktree", "add", "--detach", str(worktree), revision],
+                              text=True, capture_output=True)
+        if made.returncode != 0:
+            raise SystemExit(f"--reference {revision}: git worktree add failed ({made.stderr.strip()}); name a commit "
+                             "of this repository")
+        try:
+            yield worktree
+        finally:
+            subprocess.run(["git", "-C", top, "worktree", "remove", "--force", str(worktree)], capture_output=True)
+
+
+def time_reference(config: BenchmarkConfig, worktree: Path, data: Path, revision: str) -> CaseResult:
+    """One round of case (r): the revision's own benchmark in a subprocess."""
+    output = worktree / "reference_a.json"
+    done = subprocess.run(reference_command(config, data, output), cwd=worktree,
+                          env=reference_env(worktree, config.threads), text=True, capture_output=True)
+    if done.returncode != 0 or not output.is_file():
+        tail = (done.stderr.strip().splitlines() or [""])[-1]
+        raise SystemExit(f"--reference {revision}: its benchmark failed ({tail[:200]})")
+    return reference_result(json.loads(output.read_text()), revision)
+
+
 def _load_average() -> Optional[float]:
     try:
         return round(os.getloadavg()[0], 2)
@@ -397,37 +464,48 @@ def run(config: BenchmarkConfig) -> Dict:
             CONSOLE.print(f"inductor's start in this process (import, compile workers): {startup:.1f} s, added to "
                           "every compiled case's run")
         rounds: Dict[str, List[CaseResult]] = {}
-        for round_index in range(config.rounds):
-            for case in cases:
-                if case.key not in config.cases:
-                    continue
-                CONSOLE.print(f"({case.key}) {case.label}"
-                              + (f", round {round_index + 1}" if config.rounds > 1 else "") + " ...")
-                with case.context():
-                    steps, seconds, warmup_steps, warmup_seconds = time_training(
-                        case.build(), config.steps, config.warmup, config.time_budget, config.min_steps,
-                        cut_warmup=not case.compiles,
-                    )
-                result = CaseResult(case.key, case.label, case.method, case.properties, config.rays, steps, seconds,
-                                    warmup_steps, warmup_seconds, startup if case.compiles else 0.0)
-                rounds.setdefault(case.key, []).append(result)
-                gc.collect()  # the case's pipeline went with time_training's frame; free its memory before the next
-                if torch.cuda.is_available():
-                    torch.cuda.empty_cache()
-                CONSOLE.print(f"    {result.ms_per_step:.1f} ms/step, {result.rays_per_second:.0f} rays/s; warm-up "
-                              f"{warmup_steps} steps in {warmup_seconds:.1f} s")
+        reference = (reference_worktree(config.reference) if config.reference is not None
+                     else contextlib.nullcontext(None))
+        with reference as worktree:
+            for round_index in range(config.rounds):
+                if worktree is not None:
+                    CONSOLE.print(f"(r) case (a) as of {config.reference}, in a subprocess"
+                                  + (f", round {round_index + 1}" if config.rounds > 1 else "") + " ...")
+                    result = time_reference(config, worktree, data, cast(str, config.reference))
+                    rounds.setdefault("r", []).append(result)
+                    CONSOLE.print(f"    {result.ms_per_step:.1f} ms/step, {result.rays_per_second:.0f} rays/s")
+                for case in cases:
+                    if case.key not in config.cases:
+                        continue
+                    CONSOLE.print(f"({case.key}) {case.label}"
+                                  + (f", round {round_index + 1}" if config.rounds > 1 else "") + " ...")
+                    with case.context():
+                        steps, seconds, warmup_steps, warmup_seconds = time_training(
+                            case.build(), config.steps, config.warmup, config.time_budget, config.min_steps,
+                            cut_warmup=not case.compiles,
+                        )
+                    result = CaseResult(case.key, case.label, case.method, case.properties, config.rays, steps, seconds,
+                                        warmup_steps, warmup_seconds, startup if case.compiles else 0.0)
+                    rounds.setdefault(case.key, []).append(result)
+                    gc.collect()  # the case's pipeline went with time_training's frame; free its memory before the next
+                    if torch.cuda.is_available():
+                        torch.cuda.empty_cache()
+                    CONSOLE.print(f"    {result.ms_per_step:.1f} ms/step, {result.rays_per_second:.0f} rays/s; warm-up "
+                                  f"{warmup_steps} steps in {warmup_seconds:.1f} s")
         results = {key: sorted(timed, key=lambda result: result.ms_per_step)[(len(timed) - 1) // 2]
                    for key, timed in rounds.items()}
 
     load_after = _load_average()
     ratios = {
         f"{num}/{den}": results[num].rays_per_second / results[den].rays_per_second
-        for num, den in (("a", "b"), ("d", "c"), ("a", "e"), ("f", "a"), ("g", "f"), ("g", "a"))
+        for num, den in (("a", "b"), ("d", "c"), ("a", "e"), ("f", "a"), ("g", "f"), ("g", "a"), ("a", "r"),
+                         ("f", "r"), ("g", "r"))
         if num in results and den in results
     }
     run_ratios = {
-        f"{num}/a": results["a"].run_seconds(config.run_steps) / results[num].run_seconds(config.run_steps)
-        for num in ("f", "g") if num in results and "a" in results
+        f"{num}/{den}": results[den].run_seconds(config.run_steps) / results[num].run_seconds(config.run_steps)
+        for num, den in (("f", "a"), ("g", "a"), ("a", "r"), ("f", "r"), ("g", "r"))
+        if num in results and den in results
     }
     print()
     print(format_table(results, config.run_steps))
@@ -446,6 +524,10 @@ def run(config: BenchmarkConfig) -> Dict:
     if "g/a" in ratios:
         print(f"(g)/(a) ssnerf-lite compiled with bfloat16 / eager:         {ratios['g/a']:.3f}x throughput, "
               f"{run_ratios['g/a']:.3f}x steps per second over a {config.run_steps}-step run, compile included")
+    for num in ("a", "f", "g"):
+        if f"{num}/r" in ratios:
+            print(f"({num})/(r) this {results[num].label} / (a) as of {config.reference}: {ratios[f'{num}/r']:.3f}x "
+                  f"throughput, {run_ratios[f'{num}/r']:.3f}x steps per second over a {config.run_steps}-step run")
     busy = [load for load in (load_before, load_after) if load is not None and load > (os.cpu_count() or 1) + 0.5]
     print(f"torch threads: {torch.get_num_threads()}; 1-min load average {load_before} before / {load_after} after on "
           f"{os.cpu_count()} cores")
@@ -465,6 +547,7 @@ def run(config: BenchmarkConfig) -> Dict:
         "samples_per_ray_c_d": samples,
         "rounds": config.rounds,
         "run_steps": config.run_steps,
+        "reference": config.reference,
         "cases": {key: result.to_dict(config.run_steps) for key, result in results.items()},
         "ms_per_step_by_round": {key: [result.ms_per_step for result in timed] for key, timed in rounds.items()},
         "ratios": ratios,
