@@ -380,8 +380,9 @@ def reference_worktree(revision: str) -> Iterator[Path]:
         made = subprocess.run(["git", "-C", top, "worktree", "add", "--detach", str(worktree), revision],
                               text=True, capture_output=True)
         if made.returncode != 0:
-            raise SystemExit(f"--reference {revision}: git worktree add failed ({made.stderr.strip()}); name a commit "
-                             "of this repository")
+            reason = " ".join(made.stderr.split())
+            raise SystemExit(f"--reference {revision}: git worktree add failed ({reason}); name a commit of this "
+                             "repository")
         try:
             yield worktree
         finally:
