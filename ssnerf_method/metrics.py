@@ -41,6 +41,8 @@ class Metric(ABC):
     reported: Tuple[Tuple[str, bool], ...] = ()
     """The values reports show, as (name, higher is better): the paper's number first (the headline of Table 1),
     then any measure beside it."""
+    decides: Tuple[str, ...] = ()
+    """Which of `reported` decide whether one method beats another (a win needs every one); empty: the headline."""
 
     @abstractmethod
     def statistics(self, prediction: Tensor, label: Tensor, valid: Bool[Tensor, "h w"], num_classes: int) -> Statistics:
@@ -171,6 +173,7 @@ class SparseMapMetric(L1Metric):
     and those found (`truth_hits`)."""
 
     reported = (("l1", False), ("f1", True), ("ap", True))
+    decides = ("f1", "ap")  # an empty map's L1 ties a good one's, so L1 cannot tell methods apart on sparse maps
 
     def summarize(self, statistics: Statistics) -> Dict[str, float]:
         values = super().summarize(statistics)

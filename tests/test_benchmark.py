@@ -36,9 +36,21 @@ def test_tables_average_scenes_and_judge_each_metric_the_right_way() -> None:
     assert rows[2]["semantics"] == pytest.approx(0.7) and rows[2]["normals"] == pytest.approx(0.03)
     assert rows[3]["semantics"] == pytest.approx(0.725) and rows[3]["normals"] == pytest.approx(0.025)
     # mIoU: higher is better (0.7 < 0.725: loses); L1: lower is better (0.03 > 0.025: loses)
-    assert beats(rows, ("semantics", "normals"), "Heuristic") == {"semantics": False, "normals": False}
+    assert beats(rows, ("semantics", "normals"), "Heuristic") == {"semantics": ["miou"], "normals": ["l1"]}
+    assert beats([{**rows[2], "normals": 0.02}, rows[3]], ("normals",), "Heuristic") == {"normals": []}
     psnr = table2(results, ("semantics", "normals"))
     assert psnr[-1] == {"row": "average", "nerf": 21.0, "ssnerf-semantics": 22.0, "ssnerf-normals": 22.0}
+
+
+def test_sparse_maps_are_judged_by_f1_and_ap_not_l1() -> None:
+    """An empty edge map's L1 ties a good map's, so F1 and AP decide the sparse maps: a worse L1 with better F1 and
+    AP is a win, and a worse F1 alone is a loss named by its measure."""
+    ours = {"row": "SS-NeRF, average", "keypoints": 0.06, "keypoints_f1": 0.60, "keypoints_ap": 0.50}
+    theirs = {"row": "Heuristic, average", "keypoints": 0.05, "keypoints_f1": 0.59, "keypoints_ap": 0.49}
+    assert beats([ours, theirs], ("keypoints",), "Heuristic") == {"keypoints": []}
+    assert beats([{**ours, "keypoints_f1": 0.58}, theirs], ("keypoints",), "Heuristic") == {"keypoints": ["f1"]}
+    assert beats([{**ours, "keypoints_f1": 0.58, "keypoints_ap": 0.4}, theirs], ("keypoints",), "Heuristic") == {
+        "keypoints": ["f1", "ap"]}
 
 
 @pytest.mark.filterwarnings("ignore")

@@ -30,20 +30,27 @@ class Column:
     """Metric name in the runs' metrics (`semantics_miou`, `edges_f1`, ...)."""
     higher: bool
     """Whether higher is better."""
+    decides: bool = True
+    """Whether a comparison between methods reads it (`Metric.decides`): F1 and AP for the sparse maps, not L1."""
+
+    @property
+    def measure(self) -> str:
+        """The metric's name without the property's prefix (`f1` of `edges_f1`)."""
+        return self.metric[len(REGISTRY[self.prop].metric_prefix):]
 
     @property
     def title(self) -> str:
         """The paper's abbreviation, the measure and the better direction, e.g. `ED f1 ↑`."""
-        return f"{REGISTRY[self.prop].short} {self.metric[len(REGISTRY[self.prop].metric_prefix):]} " + (
-            "↑" if self.higher else "↓")
+        return f"{REGISTRY[self.prop].short} {self.measure} " + ("↑" if self.higher else "↓")
 
 
 def property_columns(name: str) -> List[Column]:
     """A property's reported numbers (its metric's `reported`): the paper's headline first, then the measures beside
     it (F1 and AP for the sparse maps, which an empty map cannot pass)."""
-    spec = REGISTRY[name]
-    return [Column(name if index == 0 else spec.metric_prefix + key, name, spec.metric_prefix + key, higher)
-            for index, (key, higher) in enumerate(METRICS[spec.metric].reported)]
+    spec, metric = REGISTRY[name], METRICS[REGISTRY[name].metric]
+    deciding = metric.decides or (metric.reported[0][0],)
+    return [Column(name if index == 0 else spec.metric_prefix + key, name, spec.metric_prefix + key, higher,
+                   key in deciding) for index, (key, higher) in enumerate(metric.reported)]
 
 
 def columns_of(properties: Sequence[str]) -> List[Column]:
@@ -111,16 +118,18 @@ def property_table(rows: List[Dict], properties: Sequence[str], digits: int = 4)
     return markdown(rows, [column.key for column in columns], [column.title for column in columns], digits)
 
 
-def beats(rows: List[Dict], properties: Sequence[str], baseline: str) -> Dict[str, bool]:
-    """Per property: does SS-NeRF's average beat the baseline's average?"""
+def beats(rows: List[Dict], properties: Sequence[str], baseline: str) -> Dict[str, List[str]]:
+    """Per property, the deciding measures (`Column.decides`) on which SS-NeRF's average does not beat the baseline's
+    average: an empty list is a win. Properties either row lacks are left out."""
     ours = next(row for row in rows if row["row"] == "SS-NeRF, average")
     theirs = next((row for row in rows if row["row"] == f"{baseline}, average"), None)
     result = {}
     for name in properties:
-        if theirs is None or ours[name] is None or theirs[name] is None:
+        deciding = [column for column in property_columns(name) if column.decides]
+        if theirs is None or any(ours.get(c.key) is None or theirs.get(c.key) is None for c in deciding):
             continue
-        higher = headline(name)[1]
-        result[name] = ours[name] > theirs[name] if higher else ours[name] < theirs[name]
+        result[name] = [column.measure for column in deciding if not (
+            ours[column.key] > theirs[column.key] if column.higher else ours[column.key] < theirs[column.key])]
     return result
 
 
@@ -163,9 +172,10 @@ def write_report(output: Path, results: Results, properties: Sequence[str], meth
     second = table2(results, properties)
     verdicts = {baseline: beats(first, properties, baseline) for baseline in BASELINE_ROWS.values()}
     summary = "; ".join(
-        f"beats {baseline} on {sum(won.values())}/{len(won)}"
-        + (f" (not on {', '.join(name for name, ok in won.items() if not ok)})" if not all(won.values()) else "")
-        for baseline, won in verdicts.items() if won
+        f"beats {baseline} on {sum(not lost for lost in verdict.values())}/{len(verdict)}"
+        + (" (not on " + ", ".join(f"{name} ({', '.join(lost)})" for name, lost in verdict.items() if lost) + ")"
+           if any(verdict.values()) else "")
+        for baseline, verdict in verdicts.items() if verdict
     )
     report = "\n\n".join(part for part in [
         f"# SS-NeRF benchmark ({training_words(method, steps, lr_drop)})",
