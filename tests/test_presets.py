@@ -62,7 +62,7 @@ def test_typed_flags_override_the_preset_and_the_study_can_be_typed(tmp_path: Pa
     preset = REPO / "configs" / "table4-multitask.yaml"
     config = parse(["multitask", "--preset", str(preset), "--steps", "7", "--target", "edges"])
     assert (config.steps, config.target, config.others) == (7, "edges", ("semantics", "normals", "keypoints", "edges"))
-    assert load(REPO / "configs" / "table1.yaml").steps == 2000
+    assert load(REPO / "configs" / "table1.yaml").steps == 3000
     assert load(REPO / "configs" / "table1.yaml", "--steps", "30").steps == 30
 
 
