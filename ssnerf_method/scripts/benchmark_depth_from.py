@@ -1,12 +1,13 @@
 """How close normals made by `ssnerf-label --depth-from` come to normals made from the true depth.
 
     python -m ssnerf_method.scripts.benchmark_depth_from [--output reports/depth_from] [--steps 1000] \
-        [--depth-from-scale 0.25] [--depth-from-smoothing 0.1]
+        [--depth-from-scale 0.25] [--depth-from-smoothing 0.1] [--properties edges keypoints]
 
 1. Generates the benchmark's walkthrough scene (`BENCHMARK_SCENE`, seed 0) and a depth-less copy of it, `capture/`
    (images and poses only, as `ns-process-data` leaves a phone capture).
 2. Trains an RGB-only `ssnerf-lite` on `capture/` for `--steps` (`method_configs.short_run`, `properties=()`); a run
-   whose final checkpoint exists is reused.
+   whose final checkpoint exists is reused. With `--properties` (those `ssnerf-label` makes from the images alone,
+   edges and keypoints), the model trains on them too, labelled first in a copy, `capture_labelled/`.
 3. Labels normals and shading twice with `ssnerf-label`'s engine: `truth/` from the scene's depth files, `rendered/`
    (a fresh copy of `capture/`) with `--depth-from` the model.
 4. Prints and writes (`OUTPUT/depth_from.json`) the median and mean angle between the two normal maps over the pixels
@@ -23,7 +24,7 @@ import sys
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Dict, List, Optional
+from typing import Dict, List, Optional, Tuple
 
 import cv2
 import numpy as np
@@ -39,7 +40,7 @@ from ssnerf_method.experiments.benchmark import BENCHMARK_SCENE
 from ssnerf_method.labelling.label_dataset import LabelDatasetBase, LabelDatasetConfig, label_dataset
 from ssnerf_method.labels.encoding import decode_normals
 from ssnerf_method.method_configs import short_run
-from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
+from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, labelled_properties
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
 METHOD = "ssnerf-lite"
@@ -58,6 +59,9 @@ class BenchmarkDepthFromConfig:
     depth_from_smoothing: float = LabelDatasetBase.depth_from_smoothing
     """`ssnerf-label --depth-from-smoothing`: guided-filter radius over the normals, as a fraction of the image's
     shorter side (default: ssnerf-label's; 0 = none)."""
+    properties: Tuple[str, ...] = ()
+    """Properties the model trains on beside RGB, labelled from the images alone by `ssnerf-label` (edges,
+    keypoints: what a capture without depth has); default none, an RGB-only model."""
     seed: int = 0
     """Scene seed."""
     width: Optional[int] = None
@@ -83,10 +87,12 @@ def images_only(scene: Path, target: Path, keep_depth: bool) -> Path:
 
 
 def train(config: BenchmarkDepthFromConfig, capture: Path) -> Dict:
-    """Train (or reuse) the RGB-only model; returns its config.yml path and training seconds (None when reused)."""
+    """Train (or reuse) the model (RGB, plus `--properties`); returns its config.yml path and training seconds (None
+    when reused)."""
     trainer = short_run(METHOD, capture, config.output / "runs", config.steps)
-    trainer.pipeline.model.properties = ()  # type: ignore[attr-defined]
-    trainer.experiment_name, trainer.timestamp = "rgb-only", f"steps{config.steps}"
+    trainer.pipeline.model.properties = config.properties  # type: ignore[attr-defined]
+    trainer.experiment_name = "+".join(("rgb", *config.properties)) if config.properties else "rgb-only"
+    trainer.timestamp = f"steps{config.steps}"
     config_path = trainer.get_base_dir() / "config.yml"
     checkpoint = trainer.get_checkpoint_dir() / f"step-{config.steps - 1:09d}.ckpt"
     seconds = None
@@ -98,10 +104,11 @@ def train(config: BenchmarkDepthFromConfig, capture: Path) -> Dict:
     return {"config": config_path, "train_seconds": seconds}
 
 
-def label(data: Path, **options) -> float:
-    """Label normals and shading of `data` in place; returns the seconds it took."""
+def label(data: Path, properties: Tuple[str, ...] = ("normals", "shading"), **options) -> float:
+    """Label `properties` of `data` in place (normals and shading unless told); returns the seconds it took."""
     start = time.time()
-    config = LabelDatasetConfig(data=data, edges=False, keypoints=False, semantics=False, **options)
+    switches = {spec.name: spec.name in properties for spec in labelled_properties()}
+    config = LabelDatasetConfig(data=data, **switches, **options)
     label_dataset(config, load_transforms(data))
     return round(time.time() - start, 1)
 
@@ -153,7 +160,17 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
     capture = output / "capture"
     if not (capture / "transforms.json").is_file():
         images_only(scene, capture, keep_depth=False)
-    run = train(config, capture)
+    training = capture
+    if config.properties:
+        from_images = [spec.name for spec in labelled_properties() if set(spec.label_maker.reads) <= {"rgb"}]
+        unknown = sorted(set(config.properties) - set(from_images))
+        if unknown:
+            raise SystemExit(f"--properties: {', '.join(unknown)} cannot be labelled from the images alone; choose "
+                             f"among {', '.join(from_images)}")
+        training = output / "capture_labelled"
+        if not (training / "transforms.json").is_file():
+            label(images_only(capture, training, keep_depth=False), config.properties, workers=2)
+    run = train(config, training)
 
     truth = images_only(scene, output / "truth", keep_depth=True)
     rendered = images_only(capture, output / "rendered", keep_depth=False)
@@ -183,8 +200,8 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
         "command": " ".join(["python -m ssnerf_method.scripts.benchmark_depth_from", *sys.argv[1:]]),
         "scene": {"seed": config.seed, **BENCHMARK_SCENE, **size, "frames": len(meta["frames"]),
                   "held_out": len(held_out)},
-        "model": {"method": METHOD, "properties": [], "steps": config.steps, "config": str(run["config"]),
-                  "train_seconds": run["train_seconds"]},
+        "model": {"method": METHOD, "properties": list(config.properties), "steps": config.steps,
+                  "config": str(run["config"]), "train_seconds": run["train_seconds"]},
         "depth_from_scale": config.depth_from_scale,
         "depth_from_smoothing": config.depth_from_smoothing,
         "label_seconds": {"true_depth": truth_seconds, "depth_from": rendered_seconds},
@@ -193,7 +210,8 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
         "figure": str(output / f"normals_{shown}.png") if shown else None,
     }
     write_json_atomic(output / "depth_from.json", result)
-    CONSOLE.print(f"Normals from --depth-from ({config.steps}-step RGB-only {METHOD}, depth at "
+    trained = "+".join(("RGB", *config.properties)) if config.properties else "RGB-only"
+    CONSOLE.print(f"Normals from --depth-from ({config.steps}-step {trained} {METHOD}, depth at "
                   f"{config.depth_from_scale:g}x, smoothing {config.depth_from_smoothing:g}) against normals from the "
                   "true depth, over pixels labelled in both:")
     for split, values in result["angle"].items():
