@@ -69,6 +69,19 @@ class BenchmarkDepthFromConfig:
     height: Optional[int] = None
     num_frames: Optional[int] = None
 
+    def __post_init__(self) -> None:
+        """A property that needs more than the images ends the run here, before any scene is generated."""
+        from_images = [spec.name for spec in labelled_properties() if set(spec.label_maker.reads) <= {"rgb"}]
+        unknown = sorted(set(self.properties) - set(from_images))
+        if unknown:
+            raise SystemExit(f"--properties: {', '.join(unknown)} cannot be labelled from the images alone; choose "
+                             f"among {', '.join(from_images)}")
+
+    @property
+    def model_name(self) -> str:
+        """What the model learns: "rgb-only", or e.g. "rgb+edges+keypoints" (its run folder and the printed line)."""
+        return "+".join(("rgb", *self.properties)) if self.properties else "rgb-only"
+
 
 def images_only(scene: Path, target: Path, keep_depth: bool) -> Path:
     """A fresh copy of `scene` whose transforms list images, poses (and depth, if kept) and no labels."""
@@ -91,8 +104,7 @@ def train(config: BenchmarkDepthFromConfig, capture: Path) -> Dict:
     when reused)."""
     trainer = short_run(METHOD, capture, config.output / "runs", config.steps)
     trainer.pipeline.model.properties = config.properties  # type: ignore[attr-defined]
-    trainer.experiment_name = "+".join(("rgb", *config.properties)) if config.properties else "rgb-only"
-    trainer.timestamp = f"steps{config.steps}"
+    trainer.experiment_name, trainer.timestamp = config.model_name, f"steps{config.steps}"
     config_path = trainer.get_base_dir() / "config.yml"
     checkpoint = trainer.get_checkpoint_dir() / f"step-{config.steps - 1:09d}.ckpt"
     seconds = None
@@ -162,11 +174,6 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
         images_only(scene, capture, keep_depth=False)
     training = capture
     if config.properties:
-        from_images = [spec.name for spec in labelled_properties() if set(spec.label_maker.reads) <= {"rgb"}]
-        unknown = sorted(set(config.properties) - set(from_images))
-        if unknown:
-            raise SystemExit(f"--properties: {', '.join(unknown)} cannot be labelled from the images alone; choose "
-                             f"among {', '.join(from_images)}")
         training = output / "capture_labelled"
         if not (training / "transforms.json").is_file():
             label(images_only(capture, training, keep_depth=False), config.properties, workers=2)
@@ -210,8 +217,7 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
         "figure": str(output / f"normals_{shown}.png") if shown else None,
     }
     write_json_atomic(output / "depth_from.json", result)
-    trained = "+".join(("RGB", *config.properties)) if config.properties else "RGB-only"
-    CONSOLE.print(f"Normals from --depth-from ({config.steps}-step {trained} {METHOD}, depth at "
+    CONSOLE.print(f"Normals from --depth-from ({config.steps}-step {config.model_name} {METHOD}, depth at "
                   f"{config.depth_from_scale:g}x, smoothing {config.depth_from_smoothing:g}) against normals from the "
                   "true depth, over pixels labelled in both:")
     for split, values in result["angle"].items():
