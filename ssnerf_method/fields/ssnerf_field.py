@@ -49,18 +49,19 @@ class BranchDecoder(nn.Module):
 class GroupedDecoders(nn.Module):
     """A decoder branch split into several MLPs on the same inputs, each giving a group of the branch's properties:
     properties in different groups (RGB included) never compete for hidden units. The groups named in `extended`
-    also see extra inputs (the class grid's features) after the branch's."""
+    also see the first `extended[key]` extra inputs (the class grid's features, then its sinusoids) after the
+    branch's."""
 
     def __init__(
         self, in_dim: int, widths: Dict[str, int], num_layers: int, groups: Dict[str, Dict[str, int]],
-        extended: Sequence[str] = (), extra_dim: int = 0,
+        extended: Optional[Dict[str, int]] = None,
     ) -> None:
         super().__init__()
         self.names = [name for heads in groups.values() for name in heads]
         """The branch's properties, as `BranchDecoder.names`."""
-        self.extended = [key for key, heads in groups.items() if key in extended and heads]
+        self.extended = {key: dim for key, dim in (extended or {}).items() if groups.get(key)}
         self.decoders = nn.ModuleDict({
-            key: BranchDecoder(in_dim + (extra_dim if key in self.extended else 0), widths[key], num_layers, heads)
+            key: BranchDecoder(in_dim + self.extended.get(key, 0), widths[key], num_layers, heads)
             for key, heads in groups.items() if heads
         })
 
@@ -69,8 +70,9 @@ class GroupedDecoders(nn.Module):
     ) -> Dict[str, Tensor]:
         outputs: Dict[str, Tensor] = {}
         for key, decoder in self.decoders.items():
-            wide = extra is not None and key in self.extended
-            outputs.update(decoder(torch.cat([inputs, extra], dim=-1) if wide else inputs))  # type: ignore[list-item]
+            dim = self.extended.get(key, 0)
+            wide = extra is not None and dim > 0
+            outputs.update(decoder(torch.cat([inputs, extra[..., :dim]], dim=-1) if wide else inputs))  # type: ignore[index]
         return outputs
 
 
@@ -116,6 +118,11 @@ class SSNeRFField(Field):
             which keeps what is constant over a surface (its normal) from e_x's fine-scale noise.
             None: the paper's decoders.
         class_grid_properties: the properties whose decoder sees `class_grid` (each gets an MLP of its own).
+        class_grid_frequencies: if > 0, the decoder of a class-valued property in `class_grid_properties` also sees
+            sinusoids of the class grid's positions at this many octaves (the lowest one period across [0, 1]): a
+            hash grid is blank where no label reached it, the sinusoids are a smooth function of position
+            everywhere, so that a class labelled on part of a wall or a floor carries on along it. They have no
+            parameters (checkpoints keep their names).
     """
 
     def __init__(
@@ -133,13 +140,22 @@ class SSNeRFField(Field):
         implementation: Literal["tcnn", "torch"] = "torch",
         class_grid: Optional[nn.Module] = None,
         class_grid_properties: Sequence[str] = (),
+        class_grid_frequencies: int = 0,
     ) -> None:
         super().__init__()
         self.specs = {spec.name: spec for spec in specs}
         self.encoder = encoder
         gridded = {spec.name for spec in specs if spec.name in class_grid_properties}
         self.class_grid = class_grid if gridded else None
-        extra_dim = self.class_grid.get_out_dim() if self.class_grid is not None else 0  # type: ignore[operator]
+        grid_dim = self.class_grid.get_out_dim() if self.class_grid is not None else 0  # type: ignore[operator]
+        self.class_sinusoids: Optional[NeRFEncoding] = None
+        if self.class_grid is not None and class_grid_frequencies > 0:
+            self.class_sinusoids = NeRFEncoding(in_dim=3, num_frequencies=class_grid_frequencies, min_freq_exp=0.0,
+                                                max_freq_exp=float(class_grid_frequencies - 1), include_input=True)
+        sinusoid_dim = self.class_sinusoids.get_out_dim() if self.class_sinusoids is not None else 0
+        extra_dims = {name: grid_dim + (sinusoid_dim if self.specs[name].kind.categorical else 0) for name in gridded}
+        """Per property that sees the class grid: how many extra inputs it reads (the grid's, and the sinusoids for
+        a class-valued one)."""
         self.spatial_distortion = SceneContraction(order=float("inf"))
         self.density_activation = density_activation
         self.density_noise = density_noise
@@ -164,7 +180,7 @@ class SSNeRFField(Field):
             if not heads:
                 continue
             groups = decoder_groups(decoder_sharing, heads, rgb_name)
-            apart = [name for name in heads if name in gridded] if extra_dim else []
+            apart = [name for name in heads if name in gridded] if grid_dim else []
             if groups is None and not apart:
                 self.decoders[branch] = BranchDecoder(in_dim, decoder_width, decoder_layers, heads)
                 continue
@@ -175,7 +191,8 @@ class SSNeRFField(Field):
                 groups = {**shared, **{name: {name: heads[name]} for name in apart}}
             widths = {key: decoder_width if rgb_name in group or key == branch  # RGB's, or `branch`'s shared MLP
                       else property_decoder_width or decoder_width for key, group in groups.items()}
-            self.decoders[branch] = GroupedDecoders(in_dim, widths, decoder_layers, groups, apart, extra_dim)
+            self.decoders[branch] = GroupedDecoders(in_dim, widths, decoder_layers, groups,
+                                                    {name: extra_dims[name] for name in apart})
 
     def density_at(
         self, positions: Float[Tensor, "*bs 3"]
@@ -193,7 +210,10 @@ class SSNeRFField(Field):
         raw_density, feature = self.encoder(contracted)
         if self.class_grid is None:
             return raw_density, feature
-        grid = self.class_grid(unit_cube(contracted).reshape(-1, 3))
+        cube = unit_cube(contracted).reshape(-1, 3)
+        grid = self.class_grid(cube)
+        if self.class_sinusoids is not None:
+            grid = torch.cat([grid, self.class_sinusoids(cube).to(grid)], dim=-1)
         return raw_density, torch.cat([feature, grid.view(*feature.shape[:-1], -1).to(feature)], dim=-1)
 
     def density_normals(self, positions: Float[Tensor, "*bs 3"], step: float) -> Float[Tensor, "*bs 3"]:

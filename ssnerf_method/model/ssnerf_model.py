@@ -114,6 +114,10 @@ class SSNeRFModelConfig(ModelConfig):
     """If > 0, the decoders of `class_grid_properties` also see a coarse hash grid of their own (4 levels, resolution
     16 up to this one), spatially smooth, through which a few annotated frames, clicked pixels or viewer strokes spread
     to the surfaces around them (`ssnerf-study propagation`). 0: none (the paper's decoders)."""
+    class_grid_frequencies: int = 0
+    """If > 0, the class grid's features are followed by sinusoids of the position at this many octaves (the lowest
+    one period across the contracted scene), a smooth input that carries a class beyond the labelled surfaces.
+    0: the grid alone."""
     class_grid_properties: Tuple[str, ...] = CLASS_GRID_PROPERTIES
     """Properties whose decoder MLP sees the class grid (each has an MLP of its own), when `class_grid_max_res` > 0:
     the class-valued one by default; normals, shading and keypoints gain from it too (ssnerf-lite's)."""
@@ -291,6 +295,7 @@ class SSNeRFModel(Model):
             implementation=self.config.implementation,
             class_grid=self._build_class_grid(),
             class_grid_properties=self.config.class_grid_properties,
+            class_grid_frequencies=self.config.class_grid_frequencies,
         )
 
     def _build_class_grid(self) -> Optional[HashEncoding]:
