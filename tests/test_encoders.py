@@ -193,12 +193,11 @@ def test_class_grid_sinusoids_carry_a_class_along_a_surface_no_label_reached() -
 
 def test_class_grid_sinusoids_reach_the_class_valued_decoder_only_and_keep_checkpoint_names() -> None:
     torch.manual_seed(0)
-    model = tiny_model(sampling="proposal", num_proposal_samples=(4,), proposal_max_res=(16,), num_field_samples=4,
-                       decoder_sharing="property", class_grid_max_res=32, class_grid_properties=("semantics", "normals"),
-                       class_grid_frequencies=3)
-    plain = tiny_model(sampling="proposal", num_proposal_samples=(4,), proposal_max_res=(16,), num_field_samples=4,
-                       decoder_sharing="property", class_grid_max_res=32, class_grid_properties=("semantics", "normals"))
-    shapes, plain_shapes = ({name: tuple(value.shape) for name, value in m.state_dict().items()} for m in (model, plain))
+    options = dict(sampling="proposal", num_proposal_samples=(4,), proposal_max_res=(16,), num_field_samples=4,
+                   decoder_sharing="property", class_grid_max_res=32, class_grid_properties=("semantics", "normals"))
+    model, plain = tiny_model(**options, class_grid_frequencies=3), tiny_model(**options)
+    shapes, plain_shapes = ({name: tuple(value.shape) for name, value in m.state_dict().items()}
+                            for m in (model, plain))
     assert list(shapes) == list(plain_shapes)  # no new parameters: a checkpoint's names stay
     widened = {name for name in shapes if shapes[name] != plain_shapes[name]}
     assert widened and all("semantics" in name and "mlp" in name for name in widened), widened
