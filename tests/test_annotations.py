@@ -18,6 +18,7 @@ from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.labelling.label_dataset import LABELLED, LabelDatasetConfig, label_dataset
+from ssnerf_method.labels.makers import LabelOptions
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.rendering.palette import default_palette
 from ssnerf_method.scripts.check import CheckConfig
@@ -236,6 +237,23 @@ def test_mask_folder_through_annotations(data: Path, tmp_path: Path) -> None:
     assert record["format"] == "masks" and list(record["frames"]) == ["images/frame_002.png"]
 
 
+def test_clicks_grown_over_the_image_with_semantics_grow(data: Path, tmp_path: Path) -> None:
+    """`--semantics-grow` fills the image segment a click falls in (here the frame's left half, one colour); the
+    provenance says so."""
+    halves = np.zeros((HEIGHT, WIDTH, 3), np.uint8)
+    halves[:, : WIDTH // 2], halves[:, WIDTH // 2 :] = (220, 30, 30), (30, 30, 220)
+    Image.fromarray(halves).save(data / "images" / "frame_002.png")
+    (tmp_path / "clicks").mkdir()
+    clicks = np.full((HEIGHT, WIDTH), 255, np.uint8)
+    clicks[3, 2] = 2
+    Image.fromarray(clicks).save(tmp_path / "clicks" / "frame_002.png")
+    run(data, tmp_path / "clicks", label_options=LabelOptions(semantics_grow=300))
+    grown = labelled(data)["frame_002.png"]
+    assert (grown[:, : WIDTH // 2 - 1] == 2).all() and (grown[:, WIDTH // 2 + 1 :] == 255).all()
+    record = json.loads((data / "transforms.json").read_text())["ssnerf_label"]
+    assert "grown over the image's segments" in record["semantics"]
+
+
 def test_class_list_alone_is_written_and_the_dataset_checks(data: Path, edit_transforms, capsys) -> None:
     """Declaring classes before painting strokes: no frame has semantics, yet the list (and colours) is written."""
     edit_transforms(data, lambda meta: meta.update(semantic_colors=[[0, 0, 0], [9, 9, 9], [8, 8, 8], [7, 7, 7]]))
@@ -296,6 +314,7 @@ BAD: Dict[str, tuple] = {
                                    ["coco.json", "32x24", "16x12"]),
     "unknown file type": (write("labels.xml", "<annotation/>"), ["labels.xml", "convert other formats to COCO"]),
     "neither COCO nor labelme": (write("other.json", '{"objects": []}'), ["other.json", "neither a COCO"]),
+    "negative --semantics-grow": (bad_coco(args=["--semantics-grow", "-5"]), ["--semantics-grow -5", "0 (off)"]),
 }
 
 

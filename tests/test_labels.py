@@ -20,8 +20,9 @@ from ssnerf_method.labels import (
 )
 from ssnerf_method.labels.encoding import decode_normals
 from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_label, keypoint_response_map
-from ssnerf_method.labels.makers import FrameSources, LabelOptions, NormalsFromDepth
+from ssnerf_method.labels.makers import FrameSources, LabelOptions, NormalsFromDepth, SemanticsCopy
 from ssnerf_method.labels.normals import smooth_normals
+from ssnerf_method.labels.segments import grow_in_segments
 from ssnerf_method.labels.surf import local_max_3x3x3
 
 WIDTH, HEIGHT, FOCAL = 96, 72, 80.0
@@ -239,3 +240,45 @@ def test_lambertian_shading_of_known_normals() -> None:
     assert lambertian_shading(away, FOCAL, FOCAL, CX, CY).max() == 0.0
     unknown = np.full(rays.shape, np.nan)
     assert np.isnan(lambertian_shading(unknown, FOCAL, FOCAL, CX, CY)).all()
+
+
+def _regions_image() -> np.ndarray:
+    """48x32: a red left half, a blue right half holding a green 8x8 square, and a grey strip across the bottom."""
+    image = np.zeros((32, 48, 3), np.uint8)
+    image[:, :24] = (200, 40, 40)
+    image[:, 24:] = (40, 40, 200)
+    image[8:16, 32:40] = (40, 200, 40)
+    image[26:] = (128, 128, 128)
+    return image
+
+
+def test_clicks_grow_over_their_image_segment_and_no_further() -> None:
+    clicks = np.full((32, 48), 255, np.uint8)
+    clicks[5, 5], clicks[20, 40] = 1, 2  # one click in the red half, one in the blue
+    clicks[28, 4], clicks[28, 44] = 3, 1  # two classes in the grey strip
+    grown = grow_in_segments(clicks, _regions_image(), scale=300)
+
+    red, blue = np.zeros((32, 48), bool), np.zeros((32, 48), bool)
+    red[:24, :22], blue[:24, 26:] = True, True  # (away from the edges, where the blur makes thin segments of its own)
+    blue[6:18, 30:42] = False
+    assert (grown[red] == 1).all() and (grown[blue] == 2).all()
+    outside_red = np.ones((32, 48), bool)
+    outside_red[:26, :24] = False
+    outside_red[28, 44] = False  # (the click of class 1 in the strip)
+    assert not (grown[outside_red] == 1).any() and not (grown[:, :24] == 2).any()
+    assert (grown[8:16, 32:40] == 255).all()  # no click in the green square: it stays unlabelled
+    strip = grown[26:].copy()
+    assert strip[2, 4] == 3 and strip[2, 44] == 1  # clicks never change
+    strip[2, 4] = strip[2, 44] = 255
+    assert (strip == 255).all()  # two classes meet in the strip: it is not grown
+
+
+def test_semantics_maker_grows_only_when_asked() -> None:
+    clicks = np.full((32, 48), 255, np.uint8)
+    clicks[5, 5] = 1
+    frame = FrameSources(rgb=_regions_image(), rays=lambda scale: np.zeros((1, 1, 3)), semantics=lambda: clicks)
+    maker = SemanticsCopy()
+    assert (maker.make(frame, LabelOptions()) != 255).sum() == 1
+    grown = maker.make(frame, LabelOptions(semantics_grow=300))
+    assert (grown[:24, :22] == 1).all() and (grown[:, 24:] == 255).all()
+    assert "grown" in maker.describe(LabelOptions(semantics_grow=300)) and "grown" not in maker.describe(LabelOptions())

@@ -233,7 +233,7 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
     study = PropagationStudy(quick=True, output=output, scenes=(scene,), frames=(1,), pixels=(1,))
     results = study.run()
     assert (scene / "transforms.json").read_bytes() == before  # the scene itself is not touched
-    assert set(results[scene.name]) == {"1 frame", "all frames", "1 px/class/frame"}
+    assert set(results[scene.name]) == {"1 frame", "all frames", "1 px/class/frame", "1 px/class/frame, grown"}
     assert_planned(study, output, 0.0)
 
     copy = json.loads((output / "propagation" / f"{scene.name}-1frames" / "transforms.json").read_text())
@@ -253,12 +253,21 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
         if frame["file_path"] not in test and "semantics_file_path" in frame:
             _, counts = np.unique(np.asarray(Image.open(frame["semantics_file_path"])), return_counts=True)
             assert counts[:-1].max() == 1  # one pixel per class, the rest unlabelled (255, sorted last)
+    grown = json.loads((output / "propagation" / f"{scene.name}-1pixels-grown300" / "transforms.json").read_text())
+    more = 0
+    for clicked, frame in zip(sparse["frames"], grown["frames"]):
+        if frame["file_path"] not in test and "semantics_file_path" in frame:
+            clicks, filled = (np.asarray(Image.open(f["semantics_file_path"])) for f in (clicked, frame))
+            np.testing.assert_array_equal(filled[clicks != 255], clicks[clicks != 255])  # the same clicks, kept
+            more += int((filled != 255).sum() - (clicks != 255).sum())
+    assert more > 0  # grown over their segments
 
     rows = {row["row"]: row for row in json.loads((output / "study_propagation.json").read_text())["tables"][
         "propagation"]}
     assert rows["1 frame"][CEILING] == pytest.approx(len(tested & shown) / len(tested))
     assert rows["all frames"][CEILING] == 1.0 and rows["all frames"]["SS-NeRF / all frames"] == 1.0
     assert rows["all frames"]["labelled pixels"] == 1.0 > rows["1 frame"]["labelled pixels"] > 0
+    assert rows["1 px/class/frame, grown"]["labelled pixels"] == rows["1 px/class/frame"]["labelled pixels"]  # clicks
     # the scene has depth maps: every frame together sees more of the test views than one does, pixels are not frames
     assert 1.0 >= rows["all frames"][SEEN] > rows["1 frame"][SEEN] >= 0 and rows["1 px/class/frame"][SEEN] is None
     for row in rows.values():

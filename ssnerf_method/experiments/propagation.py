@@ -6,7 +6,8 @@ on copies of the scene that keep less of the training frames' semantic labels:
 - k densely labelled training frames (evenly spaced along the trajectory), for each k of `--frames`, and every
   frame (the benchmark's own run, shared);
 - c labelled pixels per class per training frame (Semantic-NeRF's sparse-label setting), for each c of `--pixels`,
-  drawn at random from each class's pixels of the frame.
+  drawn at random from each class's pixels of the frame; and the same clicks grown over the image segments they
+  fall in (`labels/segments.py`, as `ssnerf-label --semantics-grow`), unless `--grow-scale 0`.
 
 Each model is scored on the test views (mIoU, as `ns-eval` computes it) and on the training views that have no
 label (evenly chosen, at most `--train-views-scored` of them; all training views for the pixel settings, whose
@@ -55,6 +56,7 @@ from ssnerf_method.experiments.report import average, markdown
 from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
 from ssnerf_method.experiments.transfer import PATH_KEYS, evenly_spaced
 from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
+from ssnerf_method.labels.segments import SEGMENT_SCALE, grow_in_segments
 from ssnerf_method.properties import REGISTRY, class_property
 
 SSNERF, SSNERF_TRAIN = "SS-NeRF", "SS-NeRF, unlabelled training views"
@@ -71,23 +73,33 @@ SEEN = "test pixels a labelled frame sees"
 
 @dataclass(frozen=True)
 class Setting:
-    """One amount of labelling: k densely labelled frames (`frames`), c pixels per class per frame (`pixels`), or
-    every frame's labels (neither)."""
+    """One amount of labelling: k densely labelled frames (`frames`), c pixels per class per frame (`pixels`, grown
+    over the image's segments with `grow` as the segmentation's scale, if set), or every frame's labels (neither)."""
 
     frames: Optional[int] = None
     pixels: Optional[int] = None
+    grow: Optional[float] = None
+
+    @property
+    def family(self) -> str:
+        """frames, pixels or grown (the figure's curves); dense for every frame's labels."""
+        if self.frames is not None:
+            return "frames"
+        if self.pixels is not None:
+            return "pixels" if self.grow is None else "grown"
+        return "dense"
 
     @property
     def name(self) -> str:
         if self.frames is not None:
             return f"{self.frames} frame{'s' if self.frames > 1 else ''}"
         if self.pixels is not None:
-            return f"{self.pixels} px/class/frame"
+            return f"{self.pixels} px/class/frame" + ("" if self.grow is None else ", grown")
         return ALL_FRAMES
 
     def folder(self, scene: Path) -> str:
         suffix = f"{self.frames}frames" if self.frames is not None else f"{self.pixels}pixels"
-        return f"{scene.name}-{suffix}"
+        return f"{scene.name}-{suffix}" + ("" if self.grow is None else f"-grown{self.grow:g}")
 
 
 def split_images(scene: Path) -> Tuple[List[Path], List[Path]]:
@@ -150,7 +162,7 @@ def seen_by_frames(train: SSNeRFDataset, test: SSNeRFDataset, frames: List[int])
 def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, seed: int = 0) -> Dict[str, Any]:
     """Write `destination/transforms.json`: every frame of the scene with its labels, but the training frames'
     semantics cut down to `setting` (test frames keep theirs). Returns what was kept: the labelled training images
-    and the fraction of training pixels labelled."""
+    and the fraction of training pixels labelled (by hand: the clicks, before any growing)."""
     key = class_property().file_key
     train = {str(path) for path in split_images(scene)[0]}
     root = scene.resolve()
@@ -177,11 +189,16 @@ def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, s
                 continue
             if setting.pixels is not None:
                 label = sparse_pixels(label, setting.pixels, rng)
+                labelled += int((label != SEMANTIC_IGNORE).sum())
+                if setting.grow is not None:
+                    image = np.asarray(Image.open(frame["file_path"]).convert("RGB"))
+                    label = grow_in_segments(label, image, setting.grow)
                 relative = Path("semantics") / Path(frame["file_path"]).name
                 (folder / relative).parent.mkdir(parents=True, exist_ok=True)
                 Image.fromarray(label).save(folder / relative.with_suffix(".png"))
                 frame[key] = str((destination / relative.with_suffix(".png")).resolve())
-            labelled += int((label != SEMANTIC_IGNORE).sum())
+            else:
+                labelled += int((label != SEMANTIC_IGNORE).sum())
         kept = sorted(image for image in chosen)
         meta["ssnerf_propagation"] = {"scene": str(root), "setting": setting.name, "labelled_frames": kept,
                                       "labelled_pixel_fraction": labelled / max(total, 1)}
@@ -199,6 +216,9 @@ class PropagationStudy(StudyConfig):
     always added."""
     pixels: Tuple[int, ...] = (1, 5, 25)
     """Numbers c of labelled pixels per class per training frame."""
+    grow_scale: float = SEGMENT_SCALE
+    """Each c's clicks are also grown over the image segments they fall in, with this segmentation scale (as
+    `ssnerf-label --semantics-grow`); 0 leaves the grown rows out."""
     seed: int = 0
     """Seed of the random pixels of the pixel settings."""
     train_views_scored: int = 12
@@ -211,7 +231,8 @@ class PropagationStudy(StudyConfig):
     def settings(self) -> List[Setting]:
         frames, pixels = ((1, 2), (1,)) if self.quick and (self.frames, self.pixels) == (
             PropagationStudy.frames, PropagationStudy.pixels) else (self.frames, self.pixels)
-        return [*(Setting(frames=k) for k in frames), Setting(), *(Setting(pixels=c) for c in pixels)]
+        grown = [Setting(pixels=c, grow=self.grow_scale) for c in pixels] if self.grow_scale > 0 else []
+        return [*(Setting(frames=k) for k in frames), Setting(), *(Setting(pixels=c) for c in pixels), *grown]
 
     def benchmarks(self, config: BenchmarkConfig) -> Dict[Tuple[str, Setting], SceneBenchmark]:
         """Per (scene, setting): the benchmark of its labelled copy (the scene itself for every frame's labels)."""
@@ -340,13 +361,15 @@ class PropagationStudy(StudyConfig):
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
                 f"{SEEN}: the share of test pixels whose surface some labelled frame sees (with the scene's depth "
-                "maps; frame settings only).\n\n"
+                "maps; frame settings only). Labelled pixels: those labelled by hand (a grown row counts its "
+                "clicks, not the pixels they grew to).\n\n"
                 "Figure: `figure_propagation.png`.")
         return text, {"propagation": rows, "per_scene": per_scene}
 
     def figure(self, results: Results, path: Path) -> Path:
-        """mIoU against labelling effort (the fraction of training pixels labelled, log scale): a curve per method
-        for the frame settings and one for the pixel settings, the dense model as a line."""
+        """mIoU against labelling effort (the fraction of training pixels labelled by hand, log scale): a curve per
+        method for the frame settings, one for the pixel settings and one for the grown clicks, the dense model as a
+        line."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -356,13 +379,15 @@ class PropagationStudy(StudyConfig):
         rows = {row["row"]: row for row in data["propagation"]}
         figure, axis = plt.subplots(figsize=(6.4, 5.0))
         styles = {SSNERF: "o-", SSNERF_TRAIN: "o:", HEURISTIC: "s--", NEAREST: "^-."}
-        for family, marker_fill in (("frames", "full"), ("pixels", "none")):
-            chosen = [setting for setting in self.settings() if getattr(setting, family) is not None]
+        families = {"frames": ("full", "k labelled frames"), "pixels": ("none", "c pixels per class"),
+                    "grown": ("left", "c pixels per class, grown")}
+        for family, (marker_fill, description) in families.items():
+            chosen = [setting for setting in self.settings() if setting.family == family]
             for method, style in styles.items():
                 points = [(rows[s.name]["labelled pixels"], rows[s.name][method]) for s in chosen
                           if rows[s.name]["labelled pixels"] and rows[s.name][method] is not None]
                 if points:
-                    label = f"{method}, {'k labelled frames' if family == 'frames' else 'c pixels per class'}"
+                    label = f"{method}, {description}"
                     axis.plot(*zip(*sorted(points)), style, fillstyle=marker_fill, label=label)
         dense = rows.get(ALL_FRAMES, {}).get(SSNERF)
         if dense is not None:

@@ -202,6 +202,9 @@ def prepare_inputs(config: LabelDatasetBase, transforms: Transforms) -> LabelInp
     """Read and check --annotations, --semantic-classes and --depth-from (loading the model only when some frame
     needs its depth), each fault one line naming the file."""
     inputs = LabelInputs(masks=config.semantics_dir, classes=list(config.semantic_classes or []) or None)
+    if config.label_options.semantics_grow < 0:
+        raise DatasetInputError(f"--semantics-grow {config.label_options.semantics_grow:g}: must be 0 (off) or more. "
+                                "Pass e.g. 300 (larger grows clicks over larger segments).")
     if config.annotations is not None:
         if config.semantics_dir is not None:
             raise DatasetInputError(f"{config.annotations}: --annotations and --semantics-dir both given. Pass one "

@@ -18,6 +18,7 @@ from ssnerf_method.labels.edges import canny_edges
 from ssnerf_method.labels.encoding import decode_normals, encode_normals, to_uint8
 from ssnerf_method.labels.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
 from ssnerf_method.labels.normals import normals_from_points, smooth_normals
+from ssnerf_method.labels.segments import grow_in_segments
 from ssnerf_method.labels.shading import shading_from_rays
 
 Source = Literal["rgb", "depth", "normals", "semantics"]
@@ -45,6 +46,9 @@ class LabelOptions:
     """With --keypoint-label blobs: radius (Gaussian standard deviation, pixels) of each splatted keypoint."""
     normals_source: tyro.conf.Suppress[Literal["depth", "exact"]] = "depth"
     """Normal label from the depth map (the paper's), or the frame's given exact normals (a generated scene's)."""
+    semantics_grow: float = 0.0
+    """Grow sparse class ids (clicks, scribbles) over the image segments they fall in: the graph segmentation's scale
+    (300 suits 128x96 frames; larger makes larger segments); 0 copies the class ids as they are."""
     semantics_from: tyro.conf.Suppress[str] = "the frame's class ids"
     """Where the class ids come from, for the provenance line."""
 
@@ -109,10 +113,15 @@ class SemanticsCopy(LabelMaker):
     def make(self, frame: FrameSources, options: LabelOptions) -> np.ndarray:
         if frame.semantics is None:
             raise Skip("not given (semantics are never derived; pass --annotations)")
-        return frame.semantics().astype(np.uint8)
+        class_ids = frame.semantics().astype(np.uint8)
+        if options.semantics_grow > 0:
+            class_ids = grow_in_segments(class_ids, frame.rgb, options.semantics_grow)
+        return class_ids
 
     def describe(self, options: LabelOptions) -> str:
-        return f"copied from {options.semantics_from}"
+        grown = (f", grown over the image's segments (graph segmentation, scale {options.semantics_grow:g})"
+                 if options.semantics_grow > 0 else "")
+        return f"copied from {options.semantics_from}{grown}"
 
 
 class NormalsFromDepth(LabelMaker):
