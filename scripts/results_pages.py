@@ -17,6 +17,7 @@ import argparse
 import datetime
 import json
 import math
+import re
 import shutil
 import sys
 from dataclasses import dataclass
@@ -157,6 +158,8 @@ class Entry:
     def title(self) -> str:
         what = ("Benchmark: Table 1 and Table 2 (left)" if self.kind == "benchmark"
                 else f"The {self.source['name']} study")
+        if self.source.get("entry"):
+            what += f" ({self.source['entry']})"
         return f"{what}, {self.source['date']}"
 
     def page(self, titles: Dict[str, str]) -> str:
@@ -264,7 +267,7 @@ def reports_in(path: Path) -> List[Path]:
 
 def add(path: Path, machine: str, date: Optional[str] = None, command: Optional[str] = None,
         commit: Optional[str] = None, overwrite: bool = False, docs: Path = DOCS,
-        extra_figures: Sequence[Path] = ()) -> Path:
+        extra_figures: Sequence[Path] = (), entry: Optional[str] = None) -> Path:
     """Copy one report JSON and its figures (a benchmark's `figure_<scene>.png`, a study's `figure_<name>*.png`, and
     `extra_figures`) into a new entry; returns the entry's folder. Pages are not rebuilt."""
     try:
@@ -289,9 +292,13 @@ def add(path: Path, machine: str, date: Optional[str] = None, command: Optional[
         datetime.date.fromisoformat(date)
     except ValueError:
         raise UserError(f"--date {date}: not a date. Give it as YYYY-MM-DD.") from None
-    folder = docs / RESULTS / date / name
+    if entry is not None and not re.fullmatch(r"[a-z0-9]+(-[a-z0-9]+)*", entry):
+        raise UserError(f"--entry {entry!r}: not a folder name. Give lower-case words joined by hyphens, e.g. "
+                        "'propagation-clicks'.")
+    folder = docs / RESULTS / date / (entry or name)
     if folder.exists() and not overwrite:
-        raise UserError(f"{folder}: exists. Pass --overwrite to replace that entry, or --date for another day.")
+        raise UserError(f"{folder}: exists. Pass --overwrite to replace that entry, or --entry to add another one "
+                        "of the same day.")
     scenes = list(report.get("results", {}))
     patterns = [f"figure_{scene}.png" for scene in scenes] if kind == "benchmark" else [f"figure_{name}*.png"]
     figures = {figure for pattern in patterns for figure in path.parent.glob(pattern)} | set(extra_figures)
@@ -307,7 +314,7 @@ def add(path: Path, machine: str, date: Optional[str] = None, command: Optional[
         if figure.name not in large:
             shutil.copyfile(figure, folder / figure.name)
     source = {"kind": kind, "name": name, "file": path.name, "date": date, "command": command, "commit": commit,
-              "machine": machine.strip(), "figures_left_out": large}
+              "machine": machine.strip(), "figures_left_out": large, **({"entry": entry} if entry else {})}
     (folder / SOURCE).write_text(json.dumps(source, indent=2) + "\n")
     return folder
 
@@ -324,6 +331,8 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
                         "(a study's JSON records it; a benchmark's tables.json does not)")
     adding.add_argument("--commit", help="the commit it ran at (as --command)")
     adding.add_argument("--overwrite", action="store_true", help="replace an entry of the same date and name")
+    adding.add_argument("--entry", help="the entry's folder name, for a second report of the same study on one day "
+                        "(default: the report's name)")
     adding.add_argument("--figures", type=Path, nargs="+", default=[], help="more figures of the report to show "
                         "(by default: a benchmark's figure_<scene>.png, a study's figure_<name>*.png)")
     commands.add_parser("build", help="write every page from docs/results/")
@@ -334,7 +343,7 @@ def main(argv: Optional[Sequence[str]] = None) -> int:
             files = [report for path in args.reports for report in reports_in(path)]
             for report in files:
                 folder = add(report, args.machine, args.date, args.report_command, args.commit, args.overwrite,
-                             args.docs, args.figures)
+                             args.docs, args.figures, args.entry)
                 print(f"added {folder}")
         if args.command in ("add", "build"):
             for path in build(args.docs):

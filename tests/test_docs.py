@@ -317,6 +317,14 @@ def test_a_report_becomes_a_results_page(tmp_path: Path) -> None:
     index = (docs / "results" / "index.md").read_text()
     assert "2026-12-03/multitask/index\n2026-12-03/benchmark/index" in index
     assert results_pages.check(docs) == []
+    with pytest.raises(SystemExit):  # the same study on the same day: refused unless named apart
+        results_pages.main(["--docs", str(docs), "add", str(reports / "study_multitask.json"), "--machine", "2 CPU",
+                            "--date", "2026-12-03", "--commit", "0123abc"])
+    assert results_pages.main(["--docs", str(docs), "add", str(reports / "study_multitask.json"), "--machine",
+                               "2 CPU", "--date", "2026-12-03", "--commit", "0123abc", "--entry", "multitask-b"]) == 0
+    second = (entry / "multitask-b" / "index.md").read_text()
+    assert second.startswith("# The multitask study (multitask-b), 2026-12-03") and (entry / "multitask").is_dir()
+    assert results_pages.check(docs) == []
     page = docs / "results" / "2026-12-03" / "benchmark" / "index.md"
     page.write_text(page.read_text().replace("0.5100", "0.5200"))  # a number typed by hand
     assert results_pages.check(docs) == ["results/2026-12-03/benchmark/index.md: differs from its JSON"]
