@@ -15,7 +15,7 @@ from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
 
 SEGMENT_SCALE = 300.0
 """The segmentation's scale (its k) that `ssnerf-study propagation` grows clicks with: on the benchmark's 128x96
-frames, one click per class per frame grows to about a fifth of the pixels, 93% of them the right class."""
+frames, one click per class per frame grows to about a fifth of the pixels, 91-93% of them the right class."""
 SEGMENT_SIGMA = 0.5
 """Gaussian blur (pixels) of the image before it is segmented (the segmentation's own default)."""
 SEGMENT_MIN_SIZE = 20
