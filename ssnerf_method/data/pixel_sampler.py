@@ -20,6 +20,11 @@ from nerfstudio.data.pixel_samplers import PixelSampler, PixelSamplerConfig
 
 from ssnerf_method.properties import REGISTRY
 
+PATCH_RAYS = 9
+"""Rays of one smoothness patch (3x3)."""
+SMOOTHNESS_PATCHES_KEY = "smoothness_patches"
+"""Batch key: how many smoothness patches open the batch (a 0-d tensor)."""
+
 
 @dataclass
 class LabelledPixelSamplerConfig(PixelSamplerConfig):
@@ -31,6 +36,12 @@ class LabelledPixelSamplerConfig(PixelSamplerConfig):
     properties; at most half the batch)."""
     sparse_label_fraction: float = 0.5
     """A property whose labels cover less than this fraction of the training pixels counts as sparsely labelled."""
+    smoothness_patches: int = 0
+    """Rays of each batch drawn as this many 3x3 pixel patches (first in the batch, 9 rays each, in place of uniform
+    rays), on which the model's `depth_smoothness_mult` loss keeps flat surfaces flat (the pipeline sets it from the
+    model's `depth_smoothness_patches` when that loss is on). 0: none."""
+    smoothness_patch_stride: int = 4
+    """Pixels between neighbouring rays of a patch: a wider patch smooths the depth over a longer span."""
 
 
 class LabelledPixelSampler(PixelSampler):
@@ -63,6 +74,45 @@ class LabelledPixelSampler(PixelSampler):
         return sparse
 
     def sample(self, image_batch: Dict) -> Dict:
+        patches = self.config.smoothness_patches
+        if patches <= 0 or not isinstance(image_batch["image"], Tensor):
+            return self.sample_rays(image_batch)
+        rays = patches * PATCH_RAYS
+        uniform = self.num_rays_per_batch
+        self.num_rays_per_batch = max(uniform - rays, 1)
+        try:
+            batch = self.sample_rays(image_batch)
+        finally:
+            self.num_rays_per_batch = uniform
+        return prepend(self.patch_rays(image_batch, patches), batch)
+
+    def patch_rays(self, image_batch: Dict, patches: int) -> Dict:
+        """Up to `patches` 3x3 pixel patches (rows of 9 rays, row-major), `smoothness_patch_stride` pixels apart, at
+        random images and places, none touching a pixel the image's mask excludes; the batch records their number
+        under `SMOOTHNESS_PATCHES_KEY`."""
+        images = image_batch["image"]
+        count, height, width = images.shape[:3]
+        stride = max(1, min(self.config.smoothness_patch_stride, (min(height, width) - 1) // 2))
+        device = images.device
+        drawn = patches if image_batch.get("mask") is None else 4 * patches  # spares for patches a mask hits
+        index = torch.randint(count, (drawn, 1, 1), device=device)
+        offsets = torch.arange(-1, 2, device=device) * stride
+        rows = torch.randint(stride, height - stride, (drawn, 1, 1), device=device) + offsets[None, :, None]
+        columns = torch.randint(stride, width - stride, (drawn, 1, 1), device=device) + offsets[None, None, :]
+        index, rows, columns = (value.expand(drawn, 3, 3).reshape(drawn, PATCH_RAYS)
+                                for value in (index, rows, columns))
+        if image_batch.get("mask") is not None:
+            kept = image_batch["mask"][index, rows, columns, 0].bool().all(dim=-1).nonzero()[:patches, 0]
+            index, rows, columns, patches = index[kept], rows[kept], columns[kept], len(kept)
+        index, rows, columns = index.reshape(-1), rows.reshape(-1), columns.reshape(-1)
+        batch = {key: value[index, rows, columns] for key, value in image_batch.items()
+                 if key != "image_idx" and isinstance(value, Tensor)}
+        batch["indices"] = torch.stack([image_batch["image_idx"][index.cpu()].to(rows), rows, columns], dim=-1)
+        batch[SMOOTHNESS_PATCHES_KEY] = torch.tensor(patches)
+        return batch
+
+    def sample_rays(self, image_batch: Dict) -> Dict:
+        """Uniform rays, plus the labelled pixels of sparsely labelled properties."""
         if not isinstance(image_batch["image"], Tensor) or self.config.labelled_rays_per_batch <= 0:
             return super().sample(image_batch)
         sparse = self.sparse_pixels(image_batch)
@@ -82,3 +132,11 @@ class LabelledPixelSampler(PixelSampler):
         for key, value in extra.items():
             batch[key] = torch.cat([batch[key], value.to(batch[key].device)])
         return batch
+
+
+def prepend(patches: Dict, batch: Dict) -> Dict:
+    """The patch rays followed by the batch's rays, key by key (keys the batch lacks are dropped)."""
+    joined = {key: torch.cat([patches[key].to(value.device), value]) for key, value in batch.items()
+              if isinstance(value, Tensor) and value.ndim > 0 and key in patches}
+    others = {key: value for key, value in batch.items() if key not in joined}
+    return {**others, **joined, SMOOTHNESS_PATCHES_KEY: patches[SMOOTHNESS_PATCHES_KEY]}

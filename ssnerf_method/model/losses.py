@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from typing import Callable, Dict
 
+import torch
 import torch.nn.functional as F
 from jaxtyping import Bool, Float
 from torch import Tensor
@@ -33,6 +34,20 @@ def l1_loss(
     if not valid.any():
         return prediction.sum() * 0.0
     return F.l1_loss(*_masked(prediction, label, valid))
+
+
+def planar_smoothness_loss(
+    inverse_depth: Float[Tensor, "patches 3 3"], colours: Float[Tensor, "patches 9 c"], edge: float
+) -> Tensor:
+    """Mean over 3x3 pixel patches of |second differences| of the inverse z-depth along the middle row and column,
+    over the centre's value, times exp(-edge * the patch's largest colour difference). A plane seen by a pinhole
+    camera has an inverse z-depth affine in the pixel, so only bends cost, and less where the image has an edge (a
+    depth edge is likely there)."""
+    centre = inverse_depth[:, 1, 1]
+    bend = ((inverse_depth[:, 0, 1] - 2 * centre + inverse_depth[:, 2, 1]).abs()
+            + (inverse_depth[:, 1, 0] - 2 * centre + inverse_depth[:, 1, 2]).abs()) / centre.detach().clamp_min(1e-6)
+    spread = (colours.amax(dim=1) - colours.amin(dim=1)).amax(dim=-1)
+    return (bend * torch.exp(-edge * spread)).mean()
 
 
 def cross_entropy_loss(

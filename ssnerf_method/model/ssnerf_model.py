@@ -36,6 +36,7 @@ from nerfstudio.utils import colormaps
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.dataset import DEPTH_KEY
+from ssnerf_method.data.pixel_sampler import PATCH_RAYS, SMOOTHNESS_PATCHES_KEY
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY, add_pose_metadata
 from ssnerf_method.data.strokes import StrokeStore, WorldFrame
 from ssnerf_method.fields.compiled import native_bfloat16
@@ -49,7 +50,7 @@ from ssnerf_method.fields.ssnerf_field import DecoderSharing, SSNeRFField
 from ssnerf_method.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.model.encoder_transfer import encoder_modules, load_encoders
 from ssnerf_method.model.loss_balancing import LossBalancer
-from ssnerf_method.model.losses import LOSSES
+from ssnerf_method.model.losses import LOSSES, planar_smoothness_loss
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
     REGISTRY,
@@ -191,6 +192,17 @@ class SSNeRFModelConfig(ModelConfig):
     """Depth loss: DS-NeRF's (weights pulled into a narrow window around the true depth) or URF's."""
     depth_sigma: float = 0.01
     """Width of the depth loss's window around the true depth, in scene units (as nerfstudio's `depth_sigma`)."""
+    depth_smoothness_mult: float = 0.0
+    """If > 0, the weight of a loss that keeps flat surfaces flat where no depth is known: on
+    `depth_smoothness_patches` 3x3 pixel patches of each batch, the second differences of the rendered inverse
+    z-depth, which vanish on any plane, relative to the patch centre's and weighted down across colour edges
+    (RegNeRF's depth smoothness, made planar). For a model whose depth makes normals (`ssnerf-label --depth-from`).
+    0: off."""
+    depth_smoothness_patches: int = 32
+    """Patches per batch for `depth_smoothness_mult` (9 rays each, in place of uniform rays; the pipeline hands the
+    number to the pixel sampler's `smoothness_patches`)."""
+    depth_smoothness_edge: float = 10.0
+    """How fast the smoothness weight falls with the largest colour difference within a patch (RGB in [0, 1])."""
     normals_density_mult: float = 0.0
     """If > 0, the weight of a loss that lets the normals labels shape the geometry: at each ray's
     `normals_density_samples` heaviest samples, the density's own normals (`SSNeRFField.density_normals`) are pulled
@@ -398,6 +410,8 @@ class SSNeRFModel(Model):
         if self.training and result.weights_list:
             outputs["weights_list"] = result.weights_list
             outputs["ray_samples_list"] = result.ray_samples_list
+        if self.training and self.config.depth_smoothness_mult > 0:
+            outputs["smoothness_weights"], outputs["smoothness_ray_samples"] = final.weights, final.ray_samples
         if self.training and self.config.depth_loss_mult > 0:  # every level's weights, proposals included
             levels = result.levels
             outputs["depth_weights_list"] = result.weights_list or [level.weights for level in levels]
@@ -491,7 +505,23 @@ class SSNeRFModel(Model):
             losses["normals_density_loss"] = self.config.normals_density_mult * outputs["normals_density"]
         if self.training and "depth_weights_list" in outputs and DEPTH_KEY in batch:
             losses["depth_loss"] = self.config.depth_loss_mult * self.depth_loss(outputs, batch)
+        if self.training and self.config.depth_smoothness_mult > 0 and int(batch.get(SMOOTHNESS_PATCHES_KEY, 0)) > 0:
+            losses["depth_smoothness_loss"] = self.config.depth_smoothness_mult * self.depth_smoothness(
+                outputs, batch, int(batch[SMOOTHNESS_PATCHES_KEY]))
         return losses
+
+    def depth_smoothness(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor], patches: int) -> Tensor:
+        """`depth_smoothness_mult`'s loss (`planar_smoothness_loss`) on the batch's first `patches` 3x3 patches, from
+        the field's expected depth (differentiable, unlike the rendered median)."""
+        rays = patches * PATCH_RAYS
+        weights = outputs["smoothness_weights"][:rays]
+        ray_samples = outputs["smoothness_ray_samples"][:rays]
+        steps = (ray_samples.frustums.starts + ray_samples.frustums.ends) / 2
+        distance = (weights * steps).sum(dim=-2) / weights.sum(dim=-2).clamp_min(1e-6)
+        norm = outputs["directions_norm"][:rays] if "directions_norm" in outputs else torch.ones_like(distance)
+        inverse = (norm / distance.clamp_min(1e-3)).view(patches, 3, 3)
+        colours = self.rgb_spec.label(batch, self.num_classes).to(self.device)[:rays]
+        return planar_smoothness_loss(inverse, colours.view(patches, PATCH_RAYS, -1), self.config.depth_smoothness_edge)
 
     def depth_loss(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor]) -> Tensor:
         """nerfstudio's depth loss against the frames' z-depth maps, averaged over the levels (as depth-nerfacto).

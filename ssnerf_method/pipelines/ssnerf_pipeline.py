@@ -46,6 +46,14 @@ class TrainingDiverged(UserError):
     """A loss or an evaluation metric is NaN or infinite: the model is broken and nothing it gives can be used."""
 
 
+def hand_patches_to_sampler(config: SSNeRFPipelineConfig) -> None:
+    """The model's depth smoothness trains on pixel patches the sampler draws: with `depth_smoothness_mult` on, the
+    sampler's `smoothness_patches` is set to the model's `depth_smoothness_patches` (one switch for the user)."""
+    sampler = getattr(config.datamanager, "pixel_sampler", None)
+    if getattr(config.model, "depth_smoothness_mult", 0.0) > 0 and hasattr(sampler, "smoothness_patches"):
+        sampler.smoothness_patches = config.model.depth_smoothness_patches  # type: ignore[union-attr,attr-defined]
+
+
 class SSNeRFPipeline(VanillaPipeline):
     """Evaluates a split by summing per-view metric statistics (see the module docstring), and stops at the first
     non-finite loss (nerfstudio would go on and save NaN checkpoints)."""
@@ -53,6 +61,7 @@ class SSNeRFPipeline(VanillaPipeline):
     config: SSNeRFPipelineConfig
 
     def __init__(self, config: SSNeRFPipelineConfig, device: str, test_mode: str = "val", *args, **kwargs) -> None:
+        hand_patches_to_sampler(config)
         super().__init__(config, device, test_mode, *args, **kwargs)
         strokes = getattr(self.datamanager, "strokes", None)
         if strokes is not None and hasattr(self.model, "add_label_panel"):

@@ -1,13 +1,14 @@
 """How close normals made by `ssnerf-label --depth-from` come to normals made from the true depth.
 
     python -m ssnerf_method.scripts.benchmark_depth_from [--output reports/depth_from] [--steps 1000] \
-        [--depth-from-scale 0.25] [--depth-from-smoothing 0.1] [--properties edges keypoints]
+        [--depth-smoothness 0.1] [--depth-from-scale 0.25] [--depth-from-smoothing 0.1] [--properties edges keypoints]
 
 1. Generates the benchmark's walkthrough scene (`BENCHMARK_SCENE`, seed 0) and a depth-less copy of it, `capture/`
    (images and poses only, as `ns-process-data` leaves a phone capture).
-2. Trains an RGB-only `ssnerf-lite` on `capture/` for `--steps` (`method_configs.short_run`, `properties=()`); a run
-   whose final checkpoint exists is reused. With `--properties` (those `ssnerf-label` makes from the images alone,
-   edges and keypoints), the model trains on them too, labelled first in a copy, `capture_labelled/`.
+2. Trains an RGB-only `ssnerf-lite` on `capture/` for `--steps` (`method_configs.short_run`, `properties=()`), with
+   `--depth-smoothness` its `depth_smoothness_mult`; a run whose final checkpoint exists is reused. With
+   `--properties` (those `ssnerf-label` makes from the images alone, edges and keypoints), the model trains on them
+   too, labelled first in a copy, `capture_labelled/`.
 3. Labels normals and shading twice with `ssnerf-label`'s engine: `truth/` from the scene's depth files, `rendered/`
    (a fresh copy of `capture/`) with `--depth-from` the model.
 4. Prints and writes (`OUTPUT/depth_from.json`) the median and mean angle between the two normal maps over the pixels
@@ -54,6 +55,8 @@ class BenchmarkDepthFromConfig:
     """Folder for the scene, the model, the labelled copies and the results (reused: the model is trained once)."""
     steps: int = 1000
     """Training steps of the RGB-only ssnerf-lite."""
+    depth_smoothness: float = 0.1
+    """The model's `--pipeline.model.depth-smoothness-mult` (flat surfaces kept flat; 0: off, a plain RGB-only run)."""
     depth_from_scale: float = LabelDatasetBase.depth_from_scale
     """`ssnerf-label --depth-from-scale`: resolution of the rendered depth (default: ssnerf-label's)."""
     depth_from_smoothing: float = LabelDatasetBase.depth_from_smoothing
@@ -79,8 +82,10 @@ class BenchmarkDepthFromConfig:
 
     @property
     def model_name(self) -> str:
-        """What the model learns: "rgb-only", or e.g. "rgb+edges+keypoints" (its run folder and the printed line)."""
-        return "+".join(("rgb", *self.properties)) if self.properties else "rgb-only"
+        """What the model learns: "rgb-only", or e.g. "rgb+edges+keypoints", then "-smooth0.1" with
+        `--depth-smoothness` (its run folder and the printed line)."""
+        name = "+".join(("rgb", *self.properties)) if self.properties else "rgb-only"
+        return f"{name}-smooth{self.depth_smoothness:g}" if self.depth_smoothness > 0 else name
 
 
 def images_only(scene: Path, target: Path, keep_depth: bool) -> Path:
@@ -104,12 +109,13 @@ def train(config: BenchmarkDepthFromConfig, capture: Path) -> Dict:
     when reused)."""
     trainer = short_run(METHOD, capture, config.output / "runs", config.steps)
     trainer.pipeline.model.properties = config.properties  # type: ignore[attr-defined]
+    trainer.pipeline.model.depth_smoothness_mult = config.depth_smoothness  # type: ignore[attr-defined]
     trainer.experiment_name, trainer.timestamp = config.model_name, f"steps{config.steps}"
     config_path = trainer.get_base_dir() / "config.yml"
     checkpoint = trainer.get_checkpoint_dir() / f"step-{config.steps - 1:09d}.ckpt"
     seconds = None
     if not checkpoint.is_file():
-        CONSOLE.rule(f"Training RGB-only {METHOD} for {config.steps} steps on {capture}")
+        CONSOLE.rule(f"Training {config.model_name} {METHOD} for {config.steps} steps on {capture}")
         start = time.time()
         train_main(trainer)
         seconds = round(time.time() - start, 1)
@@ -208,6 +214,7 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
         "scene": {"seed": config.seed, **BENCHMARK_SCENE, **size, "frames": len(meta["frames"]),
                   "held_out": len(held_out)},
         "model": {"method": METHOD, "properties": list(config.properties), "steps": config.steps,
+                  "depth_smoothness_mult": config.depth_smoothness,
                   "config": str(run["config"]), "train_seconds": run["train_seconds"]},
         "depth_from_scale": config.depth_from_scale,
         "depth_from_smoothing": config.depth_from_smoothing,
