@@ -104,10 +104,7 @@ class LabelledPixelSampler(PixelSampler):
         if image_batch.get("mask") is not None:
             kept = image_batch["mask"][index, rows, columns, 0].bool().all(dim=-1).nonzero()[:patches, 0]
             index, rows, columns, patches = index[kept], rows[kept], columns[kept], len(kept)
-        index, rows, columns = index.reshape(-1), rows.reshape(-1), columns.reshape(-1)
-        batch = {key: value[index, rows, columns] for key, value in image_batch.items()
-                 if key != "image_idx" and isinstance(value, Tensor)}
-        batch["indices"] = torch.stack([image_batch["image_idx"][index.cpu()].to(rows), rows, columns], dim=-1)
+        batch = pixels_at(image_batch, index.reshape(-1), rows.reshape(-1), columns.reshape(-1))
         batch[SMOOTHNESS_PATCHES_KEY] = torch.tensor(patches)
         return batch
 
@@ -124,19 +121,29 @@ class LabelledPixelSampler(PixelSampler):
         shares = torch.tensor_split(torch.arange(mixed), len(sparse))
         picks = torch.cat([pixels[torch.randint(len(pixels), (len(share),), device=pixels.device)]
                            for pixels, share in zip(sparse.values(), shares)])
-        index, rows, columns = picks.unbind(-1)
-        extra = {key: value[index, rows, columns] for key, value in image_batch.items()
-                 if key != "image_idx" and value is not None}
-        extra["indices"] = torch.stack([image_batch["image_idx"][index.cpu()].to(picks), rows, columns], dim=-1)
-        extra["indices"] = extra["indices"].to(batch["indices"])
-        for key, value in extra.items():
-            batch[key] = torch.cat([batch[key], value.to(batch[key].device)])
-        return batch
+        return joined(batch, pixels_at(image_batch, *picks.unbind(-1)))
+
+
+def pixels_at(
+    image_batch: Dict, index: Int[Tensor, " rays"], rows: Int[Tensor, " rays"], columns: Int[Tensor, " rays"]
+) -> Dict[str, Tensor]:
+    """Every per-pixel value of the cached images at (image in batch, row, column), and their `indices` (camera,
+    row, column) as nerfstudio's sampler gives them."""
+    pixels = {key: value[index, rows, columns] for key, value in image_batch.items()
+              if key != "image_idx" and isinstance(value, Tensor)}
+    pixels["indices"] = torch.stack([image_batch["image_idx"][index.cpu()].to(rows), rows, columns], dim=-1)
+    return pixels
+
+
+def joined(first: Dict, second: Dict) -> Dict:
+    """The rays of `first` followed by those of `second`, key by key; a key only one of them has keeps its value
+    (`second`'s where both have a non-ray value)."""
+    both = {key: torch.cat([first[key].to(value), value]) for key, value in second.items()
+            if isinstance(value, Tensor) and value.ndim > 0 and isinstance(first.get(key), Tensor)}
+    return {**first, **second, **both}
 
 
 def prepend(patches: Dict, batch: Dict) -> Dict:
-    """The patch rays followed by the batch's rays, key by key (keys the batch lacks are dropped)."""
-    joined = {key: torch.cat([patches[key].to(value.device), value]) for key, value in batch.items()
-              if isinstance(value, Tensor) and value.ndim > 0 and key in patches}
-    others = {key: value for key, value in batch.items() if key not in joined}
-    return {**others, **joined, SMOOTHNESS_PATCHES_KEY: patches[SMOOTHNESS_PATCHES_KEY]}
+    """The patch rays followed by the batch's rays (keys the batch lacks are dropped, but for the patch count)."""
+    return {**joined({key: patches[key] for key in batch if key in patches}, batch),
+            SMOOTHNESS_PATCHES_KEY: patches[SMOOTHNESS_PATCHES_KEY]}

@@ -269,6 +269,7 @@ class SSNeRFModel(Model):
             gather_hash_lookups(self.sampling)
         self.collider = NearFarCollider(near_plane=self.config.near_plane, far_plane=self.config.far_plane)
         self.renderer_depth = DepthRenderer(method="median")
+        self.renderer_expected_depth = DepthRenderer(method="expected")  # differentiable, for the depth smoothness
         self.renderer_accumulation = AccumulationRenderer()
 
     def add_label_panel(self, store: StrokeStore, frame: WorldFrame, image_height: int, training: bool) -> None:
@@ -411,7 +412,8 @@ class SSNeRFModel(Model):
             outputs["weights_list"] = result.weights_list
             outputs["ray_samples_list"] = result.ray_samples_list
         if self.training and self.config.depth_smoothness_mult > 0:
-            outputs["smoothness_weights"], outputs["smoothness_ray_samples"] = final.weights, final.ray_samples
+            outputs["expected_depth"] = self.renderer_expected_depth(weights=final.weights,
+                                                                     ray_samples=final.ray_samples)
         if self.training and self.config.depth_loss_mult > 0:  # every level's weights, proposals included
             levels = result.levels
             outputs["depth_weights_list"] = result.weights_list or [level.weights for level in levels]
@@ -514,10 +516,7 @@ class SSNeRFModel(Model):
         """`depth_smoothness_mult`'s loss (`planar_smoothness_loss`) on the batch's first `patches` 3x3 patches, from
         the field's expected depth (differentiable, unlike the rendered median)."""
         rays = patches * PATCH_RAYS
-        weights = outputs["smoothness_weights"][:rays]
-        ray_samples = outputs["smoothness_ray_samples"][:rays]
-        steps = (ray_samples.frustums.starts + ray_samples.frustums.ends) / 2
-        distance = (weights * steps).sum(dim=-2) / weights.sum(dim=-2).clamp_min(1e-6)
+        distance = outputs["expected_depth"][:rays]
         norm = outputs["directions_norm"][:rays] if "directions_norm" in outputs else torch.ones_like(distance)
         inverse = (norm / distance.clamp_min(1e-3)).view(patches, 3, 3)
         colours = self.rgb_spec.label(batch, self.num_classes).to(self.device)[:rays]
