@@ -150,15 +150,17 @@ def run_job(job: Job, *_needed: Any) -> None:
     if job.running_file.is_file():  # a worker died running it: this is a retry
         with contextlib.suppress(ValueError, KeyError):
             attempt = json.loads(job.running_file.read_text())["attempt"] + 1
-    write_text_atomic(job.running_file, json.dumps({"host": socket.gethostname(), "pid": os.getpid(),
-                                                    "attempt": attempt}))
     sys.stdout.flush()
     sys.stderr.flush()
     saved = os.dup(1), os.dup(2)
     with job.log.open("a") as log:
+        # the log names the attempt before the record announces it: whoever reads the record (a user, the tests)
+        # finds its attempt in the log even when the worker dies at once
         log.write(f"\n=== {job.key}: attempt {attempt} on {socket.gethostname()}, pid {os.getpid()}, "
                   f"{time.strftime('%Y-%m-%d %H:%M:%S')} ===\n")
         log.flush()
+        write_text_atomic(job.running_file, json.dumps({"host": socket.gethostname(), "pid": os.getpid(),
+                                                        "attempt": attempt}))
         os.dup2(log.fileno(), 1)
         os.dup2(log.fileno(), 2)
         try:
