@@ -92,11 +92,14 @@ def test_one_model_switch_gives_the_sampler_its_patches() -> None:
     from ssnerf_method.pipelines.ssnerf_pipeline import hand_patches_to_sampler
 
     config = deepcopy(ssnerf_lite_config.pipeline)
+    config.model.semantic_affinity_mult = 0.0  # (the other user of the patches)
     hand_patches_to_sampler(config)
     assert config.datamanager.pixel_sampler.smoothness_patches == 0  # off by default: batches as before
-    config.model.depth_smoothness_mult, config.model.depth_smoothness_patches = 0.1, 7
+    config.model.depth_smoothness_mult, config.model.pixel_patches = 0.1, 7
     hand_patches_to_sampler(config)
     assert config.datamanager.pixel_sampler.smoothness_patches == 7
+    assert config.datamanager.pixel_sampler.smoothness_patch_stride == 4 and not (
+        config.datamanager.pixel_sampler.patches_while_class_sparse)
 
 
 def test_patches_keep_off_the_pixels_a_mask_excludes() -> None:

@@ -18,7 +18,7 @@ from torch import Tensor
 
 from nerfstudio.data.pixel_samplers import PixelSampler, PixelSamplerConfig
 
-from ssnerf_method.properties import REGISTRY
+from ssnerf_method.properties import REGISTRY, class_property
 
 PATCH_RAYS = 9
 """Rays of one smoothness patch (3x3)."""
@@ -38,8 +38,13 @@ class LabelledPixelSamplerConfig(PixelSamplerConfig):
     """A property whose labels cover less than this fraction of the training pixels counts as sparsely labelled."""
     smoothness_patches: int = 0
     """Rays of each batch drawn as this many 3x3 pixel patches (first in the batch, 9 rays each, in place of uniform
-    rays), on which the model's `depth_smoothness_mult` loss keeps flat surfaces flat (the pipeline sets it from the
-    model's `depth_smoothness_patches` when that loss is on). 0: none."""
+    rays), on which the model's `depth_smoothness_mult` loss keeps flat surfaces flat and its
+    `semantic_affinity_mult` spreads sparse class labels (the pipeline sets it from the model's `pixel_patches` when
+    either is on). 0: none."""
+    patches_while_class_sparse: bool = False
+    """Draw the patches only while the class property's labels are sparse (`sparse_label_fraction`), and only in
+    images that hold some of them: what the semantic affinity alone needs (it spreads a frame's labels over that
+    frame), so that densely labelled data is sampled as without it."""
     smoothness_patch_stride: int = 4
     """Pixels between neighbouring rays of a patch: a wider patch smooths the depth over a longer span."""
 
@@ -77,6 +82,12 @@ class LabelledPixelSampler(PixelSampler):
         patches = self.config.smoothness_patches
         if patches <= 0 or not isinstance(image_batch["image"], Tensor):
             return self.sample_rays(image_batch)
+        frames = None
+        if self.config.patches_while_class_sparse:
+            labelled = self.sparse_pixels(image_batch).get(class_property().name)
+            if labelled is None:
+                return self.sample_rays(image_batch)
+            frames = labelled[:, 0].unique()
         rays = patches * PATCH_RAYS
         uniform = self.num_rays_per_batch
         self.num_rays_per_batch = max(uniform - rays, 1)
@@ -84,18 +95,19 @@ class LabelledPixelSampler(PixelSampler):
             batch = self.sample_rays(image_batch)
         finally:
             self.num_rays_per_batch = uniform
-        return prepend(self.patch_rays(image_batch, patches), batch)
+        return prepend(self.patch_rays(image_batch, patches, frames), batch)
 
-    def patch_rays(self, image_batch: Dict, patches: int) -> Dict:
+    def patch_rays(self, image_batch: Dict, patches: int, frames: Optional[Int[Tensor, " frames"]] = None) -> Dict:
         """Up to `patches` 3x3 pixel patches (rows of 9 rays, row-major), `smoothness_patch_stride` pixels apart, at
-        random images and places, none touching a pixel the image's mask excludes; the batch records their number
-        under `SMOOTHNESS_PATCHES_KEY`."""
+        random places of random images (of `frames`, indices into the batch, if given), none touching a pixel the
+        image's mask excludes; the batch records their number under `SMOOTHNESS_PATCHES_KEY`."""
         images = image_batch["image"]
         count, height, width = images.shape[:3]
         stride = max(1, min(self.config.smoothness_patch_stride, (min(height, width) - 1) // 2))
         device = images.device
         drawn = patches if image_batch.get("mask") is None else 4 * patches  # spares for patches a mask hits
-        index = torch.randint(count, (drawn, 1, 1), device=device)
+        index = torch.randint(count, (drawn, 1, 1), device=device) if frames is None else frames.to(device)[
+            torch.randint(len(frames), (drawn, 1, 1), device=device)]
         offsets = torch.arange(-1, 2, device=device) * stride
         rows = torch.randint(stride, height - stride, (drawn, 1, 1), device=device) + offsets[None, :, None]
         columns = torch.randint(stride, width - stride, (drawn, 1, 1), device=device) + offsets[None, None, :]

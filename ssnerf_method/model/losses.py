@@ -50,6 +50,20 @@ def planar_smoothness_loss(
     return (bend * torch.exp(-edge * spread)).mean()
 
 
+def colour_affinity_loss(
+    probabilities: Float[Tensor, "patches 9 classes"], colours: Float[Tensor, "patches 9 c"],
+    labelled: Bool[Tensor, "patches 9"], edge: float
+) -> Tensor:
+    """Mean over 3x3 pixel patches of the L1 distance between each neighbour's class probabilities and the centre's,
+    times exp(-edge * their largest colour difference): a dense CRF's pairwise term on a patch, which spreads sparse
+    labels over regions of like colour. A pair whose two pixels are both labelled costs nothing (its labels
+    decide), so densely labelled data is left as it was."""
+    centre = probabilities[:, 4:5]
+    affinity = torch.exp(-edge * (colours - colours[:, 4:5]).abs().amax(dim=-1))
+    affinity = affinity * ~(labelled & labelled[:, 4:5])
+    return (affinity * (probabilities - centre).abs().sum(dim=-1)).mean()
+
+
 def cross_entropy_loss(
     logits: Float[Tensor, "rays classes"], label: Float[Tensor, "rays 1"], valid: Bool[Tensor, " rays"]
 ) -> Tensor:

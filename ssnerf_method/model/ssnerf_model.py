@@ -50,7 +50,7 @@ from ssnerf_method.fields.ssnerf_field import DecoderSharing, SSNeRFField
 from ssnerf_method.metrics import DEPTH_METRIC, METRICS, Statistics, summarize
 from ssnerf_method.model.encoder_transfer import encoder_modules, load_encoders
 from ssnerf_method.model.loss_balancing import LossBalancer
-from ssnerf_method.model.losses import LOSSES, planar_smoothness_loss
+from ssnerf_method.model.losses import LOSSES, colour_affinity_loss, planar_smoothness_loss
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
     REGISTRY,
@@ -194,15 +194,26 @@ class SSNeRFModelConfig(ModelConfig):
     """Width of the depth loss's window around the true depth, in scene units (as nerfstudio's `depth_sigma`)."""
     depth_smoothness_mult: float = 0.0
     """If > 0, the weight of a loss that keeps flat surfaces flat where no depth is known: on
-    `depth_smoothness_patches` 3x3 pixel patches of each batch, the second differences of the rendered inverse
+    `pixel_patches` 3x3 pixel patches of each batch, the second differences of the rendered inverse
     z-depth, which vanish on any plane, relative to the patch centre's and weighted down across colour edges
     (RegNeRF's depth smoothness, made planar). For a model whose depth makes normals (`ssnerf-label --depth-from`).
     0: off."""
-    depth_smoothness_patches: int = 32
-    """Patches per batch for `depth_smoothness_mult` (9 rays each, in place of uniform rays; the pipeline hands the
-    number to the pixel sampler's `smoothness_patches`)."""
     depth_smoothness_edge: float = 10.0
     """How fast the smoothness weight falls with the largest colour difference within a patch (RGB in [0, 1])."""
+    semantic_affinity_mult: float = 1.0
+    """If > 0, sparse class labels (a few labelled frames, clicks, strokes) spread over the image: on
+    `pixel_patches` 3x3 pixel patches of each batch, a neighbour of like colour is pulled to the centre pixel's class
+    probabilities (`colour_affinity_loss`, a dense CRF's pairwise term). Relative to the class loss (its weight and
+    the gradient balancer's multiplier apply). Pairs of labelled pixels are left to their labels, and the sampler
+    draws the patches only while the class labels are sparse: densely labelled data trains as without it."""
+    semantic_affinity_edge: float = 10.0
+    """How fast the affinity falls with the largest colour difference between two pixels (RGB in [0, 1])."""
+    semantic_affinity_stride: int = 2
+    """Pixels between neighbouring rays of the affinity's patches (with `depth_smoothness_mult` on too, the patches
+    are the depth smoothness's: the sampler's `smoothness_patch_stride`)."""
+    pixel_patches: int = 32
+    """Patches per batch for `depth_smoothness_mult` and `semantic_affinity_mult` (9 rays each, in place of uniform
+    rays; the pipeline hands the number to the pixel sampler's `smoothness_patches`)."""
     normals_density_mult: float = 0.0
     """If > 0, the weight of a loss that lets the normals labels shape the geometry: at each ray's
     `normals_density_samples` heaviest samples, the density's own normals (`SSNeRFField.density_normals`) are pulled
@@ -510,7 +521,23 @@ class SSNeRFModel(Model):
         if self.training and self.config.depth_smoothness_mult > 0 and int(batch.get(SMOOTHNESS_PATCHES_KEY, 0)) > 0:
             losses["depth_smoothness_loss"] = self.config.depth_smoothness_mult * self.depth_smoothness(
                 outputs, batch, int(batch[SMOOTHNESS_PATCHES_KEY]))
+        if self.training and self.config.semantic_affinity_mult > 0 and self.class_spec is not None and int(
+                batch.get(SMOOTHNESS_PATCHES_KEY, 0)) > 0:
+            losses["semantic_affinity_loss"] = self.config.semantic_affinity_mult * self.class_spec.weight * (
+                self.balancer.multiplier(self.class_spec.name) if self.balancer is not None else 1.0
+            ) * self.semantic_affinity(outputs, batch, int(batch[SMOOTHNESS_PATCHES_KEY]))
         return losses
+
+    def semantic_affinity(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor], patches: int) -> Tensor:
+        """`semantic_affinity_mult`'s loss (`colour_affinity_loss`) on the batch's first `patches` 3x3 patches."""
+        assert self.class_spec is not None
+        rays = patches * PATCH_RAYS
+        logits = outputs[self.class_spec.prediction_key][:rays]
+        probabilities = torch.softmax(logits.float(), dim=-1).view(patches, PATCH_RAYS, -1)
+        colours = self.rgb_spec.label(batch, self.num_classes).to(self.device)[:rays].view(patches, PATCH_RAYS, -1)
+        label = self.class_spec.label(batch, self.num_classes).to(self.device)[:rays]
+        labelled = self.class_spec.kind.valid(label).view(patches, PATCH_RAYS)
+        return colour_affinity_loss(probabilities, colours, labelled, self.config.semantic_affinity_edge)
 
     def depth_smoothness(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor], patches: int) -> Tensor:
         """`depth_smoothness_mult`'s loss (`planar_smoothness_loss`) on the batch's first `patches` 3x3 patches, from

@@ -47,11 +47,19 @@ class TrainingDiverged(UserError):
 
 
 def hand_patches_to_sampler(config: SSNeRFPipelineConfig) -> None:
-    """The model's depth smoothness trains on pixel patches the sampler draws: with `depth_smoothness_mult` on, the
-    sampler's `smoothness_patches` is set to the model's `depth_smoothness_patches` (one switch for the user)."""
+    """The model's depth smoothness and semantic affinity train on pixel patches the sampler draws: with either on,
+    the sampler's `smoothness_patches` is set to the model's `pixel_patches` (one switch for the user). With the
+    affinity alone, the patches are drawn only while the class labels are sparse, in the frames that hold some, at
+    the affinity's stride."""
     sampler = getattr(config.datamanager, "pixel_sampler", None)
-    if getattr(config.model, "depth_smoothness_mult", 0.0) > 0 and hasattr(sampler, "smoothness_patches"):
-        sampler.smoothness_patches = config.model.depth_smoothness_patches  # type: ignore[union-attr,attr-defined]
+    smoothness = getattr(config.model, "depth_smoothness_mult", 0.0) > 0
+    affinity = getattr(config.model, "semantic_affinity_mult", 0.0) > 0
+    if not (smoothness or affinity) or not hasattr(sampler, "smoothness_patches"):
+        return
+    sampler.smoothness_patches = config.model.pixel_patches  # type: ignore[union-attr,attr-defined]
+    sampler.patches_while_class_sparse = not smoothness  # type: ignore[union-attr,attr-defined]
+    if not smoothness:
+        sampler.smoothness_patch_stride = config.model.semantic_affinity_stride  # type: ignore[union-attr,attr-defined]
 
 
 class SSNeRFPipeline(VanillaPipeline):
