@@ -43,16 +43,16 @@ def test_unlike_classes_on_like_colours_cost_and_an_edge_or_two_labels_excuse_th
         float(loss.detach()))
 
 
-def labelled_images(labelled_share: float) -> dict:
-    """Four 20x24 images whose colour's first channel is the image's index; class ids cover `labelled_share` of the
-    pixels of the first three (the rest, and all of the fourth, `SEMANTIC_IGNORE`)."""
+def labelled_images(labelled_share: float, count: int = 4) -> dict:
+    """`count` 20x24 images whose colour's first channel is the image's index; class ids cover `labelled_share` of
+    the pixels of the first three (the rest, and all of the others, `SEMANTIC_IGNORE`)."""
     generator = torch.Generator().manual_seed(0)
-    labels = torch.randint(0, 3, (4, 20, 24, 1), generator=generator).float()
-    labels[torch.rand(4, 20, 24, generator=generator) >= labelled_share] = SEMANTIC_IGNORE
-    labels[3] = SEMANTIC_IGNORE
-    image = torch.rand(4, 20, 24, 3, generator=generator)
-    image[..., 0] = torch.arange(4.0)[:, None, None]
-    return {"image": image, "image_idx": torch.tensor([0, 1, 2, 3]), CLASS_KEY: labels}
+    labels = torch.randint(0, 3, (count, 20, 24, 1), generator=generator).float()
+    labels[torch.rand(count, 20, 24, generator=generator) >= labelled_share] = SEMANTIC_IGNORE
+    labels[3:] = SEMANTIC_IGNORE
+    image = torch.rand(count, 20, 24, 3, generator=generator)
+    image[..., 0] = torch.arange(float(count))[:, None, None]
+    return {"image": image, "image_idx": torch.arange(count), CLASS_KEY: labels}
 
 
 @pytest.mark.parametrize("share, expected", [(0.05, True), (1.0, False)])
@@ -64,6 +64,9 @@ def test_affinity_patches_are_drawn_only_while_the_class_labels_are_sparse(share
     assert batch["image"].shape == (256, 3) and batch[CLASS_KEY].shape == (256, 1)
     if expected:  # and only in the images that hold labels
         assert (batch["image"][: 8 * PATCH_RAYS, 0] < 3).all()
+    some_frames = labelled_images(share, count=40)  # three labelled frames of 40: sparse however labelled
+    drawn = sampler.sample(some_frames)
+    assert (SMOOTHNESS_PATCHES_KEY in drawn) == expected  # frames labelled all over have nothing to spread onto
     always = LabelledPixelSamplerConfig(num_rays_per_batch=256, smoothness_patches=8).setup()
     patched = always.sample(labelled_images(share))  # the depth smoothness's: every batch, every image
     assert int(patched[SMOOTHNESS_PATCHES_KEY]) == 8

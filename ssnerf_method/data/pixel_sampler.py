@@ -43,8 +43,9 @@ class LabelledPixelSamplerConfig(PixelSamplerConfig):
     either is on). 0: none."""
     patches_while_class_sparse: bool = False
     """Draw the patches only while the class property's labels are sparse (`sparse_label_fraction`), and only in
-    images that hold some of them: what the semantic affinity alone needs (it spreads a frame's labels over that
-    frame), so that densely labelled data is sampled as without it."""
+    images that hold some of them but leave pixels unlabelled: what the semantic affinity alone needs (it spreads a
+    frame's labels over the rest of that frame), so that data labelled frame by frame, all of some frames or every
+    frame, is sampled as without it."""
     smoothness_patch_stride: int = 4
     """Pixels between neighbouring rays of a patch: a wider patch smooths the depth over a longer span."""
 
@@ -84,10 +85,9 @@ class LabelledPixelSampler(PixelSampler):
             return self.sample_rays(image_batch)
         frames = None
         if self.config.patches_while_class_sparse:
-            labelled = self.sparse_pixels(image_batch).get(class_property().name)
-            if labelled is None:
+            frames = self.partly_labelled_frames(image_batch)
+            if frames is None or len(frames) == 0:
                 return self.sample_rays(image_batch)
-            frames = labelled[:, 0].unique()
         rays = patches * PATCH_RAYS
         uniform = self.num_rays_per_batch
         self.num_rays_per_batch = max(uniform - rays, 1)
@@ -96,6 +96,19 @@ class LabelledPixelSampler(PixelSampler):
         finally:
             self.num_rays_per_batch = uniform
         return prepend(self.patch_rays(image_batch, patches, frames), batch)
+
+    def partly_labelled_frames(self, image_batch: Dict) -> Optional[Int[Tensor, " frames"]]:
+        """Indices into the batch of the images that hold some class labels but not on every pixel (that a mask
+        keeps), while the class labels are sparse; None while they are not."""
+        labelled = self.sparse_pixels(image_batch).get(class_property().name)
+        if labelled is None:
+            return None
+        images = image_batch["image"]
+        counts = torch.bincount(labelled[:, 0], minlength=images.shape[0])
+        mask = image_batch.get("mask")
+        pixels = mask[..., 0].bool().flatten(1).sum(-1).to(counts) if mask is not None else torch.full_like(
+            counts, images.shape[1] * images.shape[2])
+        return torch.nonzero((counts > 0) & (counts < pixels))[:, 0]
 
     def patch_rays(self, image_batch: Dict, patches: int, frames: Optional[Int[Tensor, " frames"]] = None) -> Dict:
         """Up to `patches` 3x3 pixel patches (rows of 9 rays, row-major), `smoothness_patch_stride` pixels apart, at
