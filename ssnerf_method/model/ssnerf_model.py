@@ -201,11 +201,12 @@ class SSNeRFModelConfig(ModelConfig):
     depth_smoothness_edge: float = 10.0
     """How fast the smoothness weight falls with the largest colour difference within a patch (RGB in [0, 1])."""
     semantic_affinity_mult: float = 1.0
-    """If > 0, sparse class labels (a few labelled frames, clicks, strokes) spread over the image: on
-    `pixel_patches` 3x3 pixel patches of each batch, a neighbour of like colour is pulled to the centre pixel's class
-    probabilities (`colour_affinity_loss`, a dense CRF's pairwise term). Relative to the class loss (its weight and
-    the gradient balancer's multiplier apply). Pairs of labelled pixels are left to their labels, and the sampler
-    draws the patches only while the class labels are sparse: densely labelled data trains as without it."""
+    """If > 0, sparse class labels in the frames (clicks, scribbles, partly annotated frames; not the viewer's
+    strokes, which are rays) spread over the image: on `pixel_patches` 3x3 pixel patches of each batch, a neighbour
+    of like colour is pulled to the centre pixel's class probabilities (`colour_affinity_loss`, a dense CRF's
+    pairwise term). Relative to the class loss (its weight and the gradient balancer's multiplier apply). Pairs of
+    labelled pixels are left to their labels, and the sampler draws the patches only while the class labels are
+    sparse and only from partly labelled frames: densely labelled data trains as without it."""
     semantic_affinity_edge: float = 10.0
     """How fast the affinity falls with the largest colour difference between two pixels (RGB in [0, 1])."""
     semantic_affinity_stride: int = 2
