@@ -57,37 +57,50 @@ class LabelledPixelSampler(PixelSampler):
 
     def __init__(self, config: LabelledPixelSamplerConfig, **kwargs) -> None:
         super().__init__(config, **kwargs)
-        self._cache: Optional[Tuple[int, Tuple[int, ...], Dict[str, Tensor]]] = None
+        self._cache: Optional[Tuple[int, Tuple[int, ...], Dict[str, Tensor], Tensor]] = None
 
     def sparse_pixels(self, image_batch: Dict) -> Dict[str, Int[Tensor, "pixels 3"]]:
-        """Per sparsely labelled property, its labelled pixels as (image in batch, row, column). Computed once for a
-        cached batch of images (nerfstudio hands the same batch every step when all images fit)."""
+        """Per sparsely labelled property, its labelled pixels as (image in batch, row, column)."""
+        return self._labelled(image_batch)[0]
+
+    def partly_labelled_frames(self, image_batch: Dict) -> Int[Tensor, " frames"]:
+        """Indices into the batch of the images that hold some class labels but not on every pixel (that a mask
+        keeps), while the class labels are sparse; none while they are not."""
+        return self._labelled(image_batch)[1]
+
+    def _labelled(self, image_batch: Dict) -> Tuple[Dict[str, Tensor], Tensor]:
+        """`sparse_pixels` and `partly_labelled_frames`, computed once for a cached batch of images (nerfstudio
+        hands the same batch every step when all images fit)."""
         images = image_batch["image"]
         key = (id(images), tuple(images.shape))
         if self._cache is not None and self._cache[:2] == key:
-            return self._cache[2]
+            return self._cache[2], self._cache[3]
         sparse = {}
+        partly = torch.zeros(0, dtype=torch.long, device=images.device)
+        mask = image_batch.get("mask")
         for spec in REGISTRY.values():
             if spec.file_key is None or spec.name not in image_batch:
                 continue
             valid = spec.kind.valid(image_batch[spec.name])
-            if image_batch.get("mask") is not None:  # (pixels a mask excludes are never sampled)
-                valid = valid & image_batch["mask"][..., 0].bool()
+            if mask is not None:  # (pixels a mask excludes are never sampled)
+                valid = valid & mask[..., 0].bool()
             fraction = float(valid.float().mean())
             if 0.0 < fraction < self.config.sparse_label_fraction:
                 sparse[spec.name] = torch.nonzero(valid)
-        self._cache = (*key, sparse)
-        return sparse
+                if spec.name == class_property().name:
+                    counts = valid.flatten(1).sum(-1)
+                    pixels = mask[..., 0].bool().flatten(1).sum(-1) if mask is not None else valid[0].numel()
+                    partly = torch.nonzero((counts > 0) & (counts < pixels))[:, 0]
+        self._cache = (*key, sparse, partly)
+        return sparse, partly
 
     def sample(self, image_batch: Dict) -> Dict:
         patches = self.config.smoothness_patches
         if patches <= 0 or not isinstance(image_batch["image"], Tensor):
             return self.sample_rays(image_batch)
-        frames = None
-        if self.config.patches_while_class_sparse:
-            frames = self.partly_labelled_frames(image_batch)
-            if frames is None or len(frames) == 0:
-                return self.sample_rays(image_batch)
+        frames = self.partly_labelled_frames(image_batch) if self.config.patches_while_class_sparse else None
+        if frames is not None and len(frames) == 0:
+            return self.sample_rays(image_batch)
         rays = patches * PATCH_RAYS
         uniform = self.num_rays_per_batch
         self.num_rays_per_batch = max(uniform - rays, 1)
@@ -96,19 +109,6 @@ class LabelledPixelSampler(PixelSampler):
         finally:
             self.num_rays_per_batch = uniform
         return prepend(self.patch_rays(image_batch, patches, frames), batch)
-
-    def partly_labelled_frames(self, image_batch: Dict) -> Optional[Int[Tensor, " frames"]]:
-        """Indices into the batch of the images that hold some class labels but not on every pixel (that a mask
-        keeps), while the class labels are sparse; None while they are not."""
-        labelled = self.sparse_pixels(image_batch).get(class_property().name)
-        if labelled is None:
-            return None
-        images = image_batch["image"]
-        counts = torch.bincount(labelled[:, 0], minlength=images.shape[0])
-        mask = image_batch.get("mask")
-        pixels = mask[..., 0].bool().flatten(1).sum(-1).to(counts) if mask is not None else torch.full_like(
-            counts, images.shape[1] * images.shape[2])
-        return torch.nonzero((counts > 0) & (counts < pixels))[:, 0]
 
     def patch_rays(self, image_batch: Dict, patches: int, frames: Optional[Int[Tensor, " frames"]] = None) -> Dict:
         """Up to `patches` 3x3 pixel patches (rows of 9 rays, row-major), `smoothness_patch_stride` pixels apart, at

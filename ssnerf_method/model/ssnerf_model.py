@@ -519,15 +519,21 @@ class SSNeRFModel(Model):
             losses["normals_density_loss"] = self.config.normals_density_mult * outputs["normals_density"]
         if self.training and "depth_weights_list" in outputs and DEPTH_KEY in batch:
             losses["depth_loss"] = self.config.depth_loss_mult * self.depth_loss(outputs, batch)
-        if self.training and self.config.depth_smoothness_mult > 0 and int(batch.get(SMOOTHNESS_PATCHES_KEY, 0)) > 0:
+        patches = int(batch.get(SMOOTHNESS_PATCHES_KEY, 0)) if self.training else 0
+        if patches > 0 and self.config.depth_smoothness_mult > 0:
             losses["depth_smoothness_loss"] = self.config.depth_smoothness_mult * self.depth_smoothness(
-                outputs, batch, int(batch[SMOOTHNESS_PATCHES_KEY]))
-        if self.training and self.config.semantic_affinity_mult > 0 and self.class_spec is not None and int(
-                batch.get(SMOOTHNESS_PATCHES_KEY, 0)) > 0:
+                outputs, batch, patches)
+        if patches > 0 and self.config.semantic_affinity_mult > 0 and self.class_spec is not None:
             losses["semantic_affinity_loss"] = self.config.semantic_affinity_mult * self.class_spec.weight * (
                 self.balancer.multiplier(self.class_spec.name) if self.balancer is not None else 1.0
-            ) * self.semantic_affinity(outputs, batch, int(batch[SMOOTHNESS_PATCHES_KEY]))
+            ) * self.semantic_affinity(outputs, batch, patches)
         return losses
+
+    def patch_colours(self, batch: Dict[str, Tensor], patches: int) -> Tensor:
+        """(patches, 9, 3) colours of the batch's first `patches` 3x3 pixel patches, which both patch losses weigh
+        by."""
+        colours = self.rgb_spec.label(batch, self.num_classes).to(self.device)[: patches * PATCH_RAYS]
+        return colours.view(patches, PATCH_RAYS, -1)
 
     def semantic_affinity(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor], patches: int) -> Tensor:
         """`semantic_affinity_mult`'s loss (`colour_affinity_loss`) on the batch's first `patches` 3x3 patches."""
@@ -535,10 +541,10 @@ class SSNeRFModel(Model):
         rays = patches * PATCH_RAYS
         logits = outputs[self.class_spec.prediction_key][:rays]
         probabilities = torch.softmax(logits.float(), dim=-1).view(patches, PATCH_RAYS, -1)
-        colours = self.rgb_spec.label(batch, self.num_classes).to(self.device)[:rays].view(patches, PATCH_RAYS, -1)
         label = self.class_spec.label(batch, self.num_classes).to(self.device)[:rays]
         labelled = self.class_spec.kind.valid(label).view(patches, PATCH_RAYS)
-        return colour_affinity_loss(probabilities, colours, labelled, self.config.semantic_affinity_edge)
+        return colour_affinity_loss(probabilities, self.patch_colours(batch, patches), labelled,
+                                    self.config.semantic_affinity_edge)
 
     def depth_smoothness(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor], patches: int) -> Tensor:
         """`depth_smoothness_mult`'s loss (`planar_smoothness_loss`) on the batch's first `patches` 3x3 patches, from
@@ -547,8 +553,7 @@ class SSNeRFModel(Model):
         distance = outputs["expected_depth"][:rays]
         norm = outputs["directions_norm"][:rays] if "directions_norm" in outputs else torch.ones_like(distance)
         inverse = (norm / distance.clamp_min(1e-3)).view(patches, 3, 3)
-        colours = self.rgb_spec.label(batch, self.num_classes).to(self.device)[:rays]
-        return planar_smoothness_loss(inverse, colours.view(patches, PATCH_RAYS, -1), self.config.depth_smoothness_edge)
+        return planar_smoothness_loss(inverse, self.patch_colours(batch, patches), self.config.depth_smoothness_edge)
 
     def depth_loss(self, outputs: Dict[str, Tensor | List], batch: Dict[str, Tensor]) -> Tensor:
         """nerfstudio's depth loss against the frames' z-depth maps, averaged over the levels (as depth-nerfacto).
