@@ -155,6 +155,28 @@ def test_scores_a_generated_scene(tmp_path) -> None:
     assert all(np.isfinite(value) for value in scores.values())
 
 
+def test_scoring_keeps_to_the_pixels_it_is_given(tmp_path) -> None:
+    root = tmp_path / "scene"
+    make_scene(MakeSceneConfig(output_dir=root, width=32, height=24, num_frames=10))
+    test = SSNeRFDataset(SSNeRFDataParserConfig(data=root).setup().get_dataparser_outputs("test"))
+    spec = REGISTRY["semantics"]
+    num_classes = len(test.metadata["semantic_classes"])
+
+    def left_right(cameras, index: int) -> Dict[str, torch.Tensor]:
+        """The true classes on the left half of the view, the next class on the right half."""
+        ids = spec.label(test[index], num_classes)[..., 0].long().clamp(max=num_classes - 1)
+        ids[:, ids.shape[1] // 2:] = (ids[:, ids.shape[1] // 2:] + 1) % num_classes
+        return {spec.name: torch.nn.functional.one_hot(ids, num_classes).float()}
+
+    left = torch.zeros(24, 32, dtype=torch.bool)
+    left[:, :16] = True
+    whole = score_predictor(left_right, test, [spec], num_classes)["semantics_acc"]
+    on_left = score_predictor(left_right, test, [spec], num_classes, pixels={i: left for i in range(len(test))})
+    on_right = score_predictor(left_right, test, [spec], num_classes, pixels={i: ~left for i in range(len(test))})
+    assert on_left["semantics_acc"] == 1.0 and on_left["semantics_miou"] == 1.0
+    assert on_right["semantics_acc"] == 0.0 and 0.0 < whole < 1.0
+
+
 def test_warp_uses_the_given_depth_source_and_a_dataset_without_depth_is_named(tmp_path) -> None:
     root = tmp_path / "scene"
     make_scene(MakeSceneConfig(output_dir=root, width=32, height=24, num_frames=10))

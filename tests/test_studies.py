@@ -18,7 +18,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 from ssnerf_method.experiments import benchmark, sparsity
 from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
-from ssnerf_method.experiments.propagation import CEILING, SEEN, PropagationStudy
+from ssnerf_method.experiments.propagation import CEILING, ON_SEEN, ON_UNSEEN, SEEN, PropagationStudy, seen_pixels
 from ssnerf_method.experiments.report import BASELINE_ROWS
 from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import (
@@ -224,6 +224,23 @@ def test_quick_sparsity_scores_each_method_against_the_number_of_views(tmp_path:
     assert figure.std() > 10
 
 
+def test_seen_pixels_split_each_test_view_by_what_the_labelled_frames_see(trained_scene) -> None:
+    from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
+    from ssnerf_method.data.dataset import SSNeRFDataset
+
+    parser = SSNeRFDataParserConfig(data=trained_scene[0]).setup()
+    train, test = (SSNeRFDataset(parser.get_dataparser_outputs(split)) for split in ("train", "test"))
+    one, every = seen_pixels(train, test, [0]), seen_pixels(train, test, list(range(len(train))))
+    assert one is not None and every is not None and set(one) == set(every) == set(range(len(test)))
+    for index, (seen, unseen) in one.items():
+        assert seen.shape == unseen.shape == test[index]["image"].shape[:2]
+        assert not (seen & unseen).any() and (seen | unseen).all()  # (a generated room has depth everywhere)
+        assert not (seen & ~every[index][0]).any()  # what one frame sees, every frame sees
+    assert sum(int(pair[0].sum()) for pair in every.values()) > sum(int(pair[0].sum()) for pair in one.values())
+    train.depth_files = None
+    assert seen_pixels(train, test, [0]) is None
+
+
 @pytest.mark.filterwarnings("ignore")
 def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trained_scene, tmp_path: Path) -> None:
     torch.set_num_threads(1)
@@ -272,7 +289,14 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
     assert 1.0 >= rows["all frames"][SEEN] > rows["1 frame"][SEEN] >= 0 and rows["1 px/class/frame"][SEEN] is None
     for row in rows.values():
         assert all(0.0 <= row[method] <= 1.0 for method in ("SS-NeRF", "Heuristic (labelled frames)"))
-    assert CEILING in (output / "study_propagation.md").read_text()
+    # SS-NeRF scored apart on the test pixels the labelled frames see and on the rest: frame settings only
+    for name in ("1 frame", "all frames"):  # (a split with no pixels has no score: this 1 frame sees no test pixel)
+        for column, empty in ((ON_SEEN, rows[name][SEEN] == 0.0), (ON_UNSEEN, rows[name][SEEN] == 1.0)):
+            assert rows[name][column] is None if empty else 0.0 <= rows[name][column] <= 1.0
+    assert rows["all frames"][ON_SEEN] is not None and rows["all frames"][ON_UNSEEN] is not None
+    assert rows["1 px/class/frame"][ON_SEEN] is None and rows["1 px/class/frame"][ON_UNSEEN] is None
+    assert CEILING in (output / "study_propagation.md").read_text() and ON_UNSEEN in (
+        output / "study_propagation.md").read_text()
     assert np.asarray(Image.open(output / "figure_propagation.png")).std() > 10
 
 

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from typing import Callable, Dict, Optional, Sequence
+from typing import Callable, Dict, Mapping, Optional, Sequence
 
+from jaxtyping import Bool
 from torch import Tensor
 
 from nerfstudio.cameras.cameras import Cameras
@@ -18,10 +19,10 @@ Predictor = Callable[[Cameras, int], Dict[str, Tensor]]
 
 def score_predictor(
     predict: Predictor, dataset: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int,
-    views: Optional[Sequence[int]] = None,
+    views: Optional[Sequence[int]] = None, pixels: Optional[Mapping[int, Bool[Tensor, "h w"]]] = None,
 ) -> Dict[str, float]:
     """Split-level metrics (`metrics`) of `predict` on the views of `dataset` (`views`, default every one), for the
-    properties it predicts among `specs`."""
+    properties it predicts among `specs`; with `pixels`, on each view's labelled pixels that its mask keeps."""
     totals: Dict[str, Statistics] = {}
     for index in range(len(dataset)) if views is None else views:
         predictions = predict(dataset.cameras, index)
@@ -31,6 +32,9 @@ def score_predictor(
                 continue
             label = spec.label(item, num_classes)
             prediction = predictions[spec.name].to(label.device)
-            view = METRICS[spec.metric].statistics(prediction, label, spec.kind.valid(label), num_classes)
+            valid = spec.kind.valid(label)
+            if pixels is not None:
+                valid = valid & pixels[index].to(valid.device)
+            view = METRICS[spec.metric].statistics(prediction, label, valid, num_classes)
             totals[spec.name] = add_statistics(totals.get(spec.name, {}), view)
     return summarize(totals, specs)

@@ -15,8 +15,10 @@ pixels are nearly all unlabelled), against the frames' true labels. Beside it, t
 the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the model's
 rendered depth) and the nearest labelled frame copied. Each row also gives the highest test mIoU any method could
 reach from its labels (`class_coverage`): a class that is in the test views but on no labelled pixel scores 0; and,
-where the scene has depth maps, the share of test pixels whose surface a labelled frame sees (`seen_by_frames`). Writes
-`study_propagation.md` / `.json` and `figure_propagation.png` (mIoU against labelling effort, a curve per method).
+where the scene has depth maps, the share of test pixels whose surface a labelled frame sees (`seen_pixels`) and
+SS-NeRF's test mIoU on those pixels and on the others apart, which tells what the field carries in 3D (to the seen
+pixels) from what it has to guess (the others). Writes `study_propagation.md` / `.json` and `figure_propagation.png`
+(mIoU against labelling effort, a curve per method).
 
 The copies are `transforms.json` files under `OUTPUT/propagation/` that list every frame of the scene (so nerfstudio
 orients and scales the poses exactly as for the full scene) with absolute paths into it; a pixel setting's sparse
@@ -34,6 +36,7 @@ from typing import Any, Dict, List, Optional, Tuple
 import numpy as np
 import torch
 from PIL import Image
+from torch import Tensor
 
 from nerfstudio.pipelines.base_pipeline import Pipeline
 from nerfstudio.utils.rich_utils import CONSOLE
@@ -68,7 +71,9 @@ ALL_FRAMES = "all frames"
 CEILING = "mIoU ceiling (test classes labelled)"
 """Column of the highest test mIoU the labels allow (`class_coverage`)."""
 SEEN = "test pixels a labelled frame sees"
-"""Column of `seen_by_frames` (frame settings only)."""
+"""Column of `seen_share` (frame settings only)."""
+ON_SEEN, ON_UNSEEN = "SS-NeRF on those pixels", "SS-NeRF on the other test pixels"
+"""Columns of SS-NeRF's test mIoU on the pixels of `SEEN` and on the rest (frame settings only)."""
 
 
 @dataclass(frozen=True)
@@ -140,22 +145,37 @@ def class_coverage(scene: Path) -> Dict[str, Any]:
             "miou_ceiling": len(tested & shown) / len(tested) if tested else None}
 
 
-def seen_by_frames(train: SSNeRFDataset, test: SSNeRFDataset, frames: List[int]) -> Optional[float]:
-    """The share of the test views' pixels (those with depth) whose surface point one of the training views `frames`
-    sees (`PinholeView.sees`, with the dataset's depth maps); None without depth maps. A frame's labels reach what
-    it sees; the rest a method has to guess (e.g. by extending a wall's class)."""
+def seen_pixels(
+    train: SSNeRFDataset, test: SSNeRFDataset, frames: List[int]
+) -> Optional[Dict[int, Tuple[Tensor, Tensor]]]:
+    """Per test view, (H, W) masks of its pixels whose surface point one of the training views `frames` sees
+    (`PinholeView.sees`, with the dataset's depth maps) and of those (with a depth) whose surface none sees; None
+    without depth maps. A frame's labels reach what it sees; the rest a method has to guess (e.g. by extending a
+    wall's class)."""
     if train.depth_files is None or test.depth_files is None or not frames:
         return None
     scale = train.metadata["dataparser_scale"]
     train_depth, test_depth = dataset_depth(train, scale), dataset_depth(test, scale)
     sources = [(PinholeView.from_cameras(train.cameras, index), train_depth(index)) for index in frames]
-    seen = total = 0
+    masks = {}
     for index in range(len(test)):
-        points, _ = PinholeView.from_cameras(test.cameras, index).unproject(test_depth(index))
+        depth = test_depth(index)
+        points, pixels = PinholeView.from_cameras(test.cameras, index).unproject(depth)
         hit = np.zeros(len(points), dtype=bool)
-        for view, depth in sources:
-            hit |= view.sees(points, depth)
-        seen, total = seen + int(hit.sum()), total + len(points)
+        for view, source_depth in sources:
+            hit |= view.sees(points, source_depth)
+        seen, unseen = np.zeros(depth.size, dtype=bool), np.zeros(depth.size, dtype=bool)
+        seen[pixels[hit]], unseen[pixels[~hit]] = True, True
+        masks[index] = (torch.from_numpy(seen.reshape(depth.shape)), torch.from_numpy(unseen.reshape(depth.shape)))
+    return masks
+
+
+def seen_share(masks: Optional[Dict[int, Tuple[Tensor, Tensor]]]) -> Optional[float]:
+    """The share of the test views' pixels with a depth that the labelled frames see (`seen_pixels`)."""
+    if not masks:
+        return None
+    seen = sum(int(pair[0].sum()) for pair in masks.values())
+    total = seen + sum(int(pair[1].sum()) for pair in masks.values())
     return seen / total if total else None
 
 
@@ -285,22 +305,37 @@ class PropagationStudy(StudyConfig):
         if "failed" in metrics:
             return metrics
         cache = bench.folder / f"propagation-{bench.config.method}-{bench.tag}.json"
-        if cache.is_file():  # (the coverage is read afresh: caches written before it was reported lack it)
-            return {**json.loads(cache.read_text()), **class_coverage(bench.scene), **self._record(metrics, bench)}
         spec = class_property()
         key = spec.metric_prefix + "miou"
+        cached = json.loads(cache.read_text()) if cache.is_file() else None
+        if cached is not None and (setting.pixels is not None or ON_SEEN in cached):
+            # (the coverage is read afresh: caches written before it was reported lack it)
+            return {**cached, **class_coverage(bench.scene), **self._record(metrics, bench)}
         pipeline = bench.load(run.name)
         train: SSNeRFDataset = pipeline.datamanager.train_dataset  # type: ignore[assignment]
         num_classes = len(train.metadata.get("semantic_classes", []))
         labelled = [index for index in range(len(train)) if train.metadata["property_files"][spec.name][index]]
+        test = bench.test_dataset(pipeline)
+        seen = None if setting.pixels is not None else seen_pixels(train, test, labelled)
+        predict = model_predictor(pipeline)
+        split = {ON_SEEN: None, ON_UNSEEN: None}
+        if seen is not None:
+            renders: Dict[int, Dict[str, torch.Tensor]] = {}  # (each test view rendered once for both)
+            for column, side in ((ON_SEEN, 0), (ON_UNSEEN, 1)):
+                split[column] = score_predictor(
+                    lambda cameras, index: renders.setdefault(index, predict(cameras, index)), test, [spec],
+                    num_classes, pixels={index: pair[side] for index, pair in seen.items()}).get(key)
+        if cached is not None:  # (a cache from before the split was reported: the rest of it stands)
+            cached.update(split)
+            write_text_atomic(cache, json.dumps(cached, indent=2))
+            return {**cached, **class_coverage(bench.scene), **self._record(metrics, bench)}
         truth = self.true_labels(bench, train)
         unlabelled = [index for index in range(len(train)) if setting.pixels is not None or index not in labelled]
         scored = [unlabelled[int(i)] for i in np.unique(np.linspace(0, len(unlabelled) - 1,
                                                                      min(self.train_views_scored, len(unlabelled)))
                                                          .round())] if unlabelled else []
-        test = bench.test_dataset(pipeline)
         scores: Dict[str, Any] = {SSNERF: metrics.get(key)}
-        scores[SSNERF_TRAIN] = score_predictor(model_predictor(pipeline), truth, [spec], num_classes,
+        scores[SSNERF_TRAIN] = score_predictor(predict, truth, [spec], num_classes,
                                                views=scored).get(key) if scored else None
         depth = None if train.depth_files is not None else rendered_depth(pipeline, train.cameras)
         heuristic = HeuristicBaseline(train, [spec], num_classes, train.metadata["dataparser_scale"],
@@ -315,8 +350,7 @@ class PropagationStudy(StudyConfig):
         propagation = json.loads((bench.scene / "transforms.json").read_text()).get("ssnerf_propagation", {})
         scores.update(labelled_frames=len(labelled), training_frames=len(train), train_views_scored=len(scored),
                       labelled_pixel_fraction=propagation.get("labelled_pixel_fraction", 1.0),
-                      seen_by_labelled_frames=None if setting.pixels is not None else seen_by_frames(
-                          train, test, labelled))
+                      seen_by_labelled_frames=seen_share(seen), **split)
         write_text_atomic(cache, json.dumps(scores, indent=2))
         return {**scores, **class_coverage(bench.scene), **self._record(metrics, bench)}
 
@@ -340,7 +374,8 @@ class PropagationStudy(StudyConfig):
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
         """Rows: the settings; columns: each method's mIoU (average over scenes), the share of the dense model's
-        mIoU, the mIoU ceiling of the labels (`class_coverage`) and the fraction of training pixels labelled."""
+        mIoU, the mIoU ceiling of the labels (`class_coverage`), the share of test pixels the labelled frames see and
+        SS-NeRF's mIoU on them and on the rest, and the fraction of training pixels labelled."""
         rows = []
         for setting in self.settings():
             runs = [scenes.get(setting.name, {}) for scenes in results.values()]
@@ -351,18 +386,21 @@ class PropagationStudy(StudyConfig):
             row["SS-NeRF / all frames"] = None if row[SSNERF] is None or not dense else row[SSNERF] / dense
             row[CEILING] = average([run.get("miou_ceiling") for run in runs])
             row[SEEN] = average([run.get("seen_by_labelled_frames") for run in runs])
+            row[ON_SEEN] = average([run.get(ON_SEEN) for run in runs])
+            row[ON_UNSEEN] = average([run.get(ON_UNSEEN) for run in runs])
             row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
             rows.append(row)
-        titles = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, "labelled pixels (fraction)"]
-        columns = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, "labelled pixels"]
+        titles = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, ON_SEEN, ON_UNSEEN, "labelled pixels (fraction)"]
+        columns = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, ON_SEEN, ON_UNSEEN, "labelled pixels"]
         per_scene = {scene: {name: {method: runs[name].get(method) for method in METHODS} for name in runs}
                      for scene, runs in results.items()}
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
                 f"{SEEN}: the share of test pixels whose surface some labelled frame sees (with the scene's depth "
-                "maps; frame settings only). Labelled pixels: those labelled by hand (a grown row counts its "
-                "clicks, not the pixels they grew to).\n\n"
+                f"maps; frame settings only); {ON_SEEN} and {ON_UNSEEN}: SS-NeRF's mIoU on those test pixels and on "
+                "the rest (with a depth) apart, each over the classes they show. Labelled pixels: those labelled "
+                "by hand (a grown row counts its clicks, not the pixels they grew to).\n\n"
                 "Figure: `figure_propagation.png`.")
         return text, {"propagation": rows, "per_scene": per_scene}
 
