@@ -392,8 +392,8 @@ class PropagationStudy(StudyConfig):
             rows.append(row)
         titles = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, ON_SEEN, ON_UNSEEN, "labelled pixels (fraction)"]
         columns = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, ON_SEEN, ON_UNSEEN, "labelled pixels"]
-        per_scene = {scene: {name: {method: runs[name].get(method) for method in METHODS} for name in runs}
-                     for scene, runs in results.items()}
+        per_scene = {scene: {name: {column: runs[name].get(column) for column in (*METHODS, ON_SEEN, ON_UNSEEN)}
+                             for name in runs} for scene, runs in results.items()}
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
