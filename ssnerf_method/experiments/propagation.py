@@ -72,7 +72,7 @@ CEILING = "mIoU ceiling (test classes labelled)"
 """Column of the highest test mIoU the labels allow (`class_coverage`)."""
 SEEN = "test pixels a labelled frame sees"
 """Column of `seen_share` (frame settings only)."""
-ON_SEEN, ON_UNSEEN = "SS-NeRF on those pixels", "SS-NeRF on the other test pixels"
+ON_SEEN, ON_UNSEEN = "SS-NeRF on seen test pixels", "SS-NeRF on unseen test pixels"
 """Columns of SS-NeRF's test mIoU on the pixels of `SEEN` and on the rest (frame settings only)."""
 
 
@@ -399,7 +399,7 @@ class PropagationStudy(StudyConfig):
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
                 f"{SEEN}: the share of test pixels whose surface some labelled frame sees (with the scene's depth "
                 f"maps; frame settings only); {ON_SEEN} and {ON_UNSEEN}: SS-NeRF's mIoU on those test pixels and on "
-                "the rest (with a depth) apart, each over the classes they show. Labelled pixels: those labelled "
+                "the rest (with a depth) apart, each over the classes it shows. Labelled pixels: those labelled "
                 "by hand (a grown row counts its clicks, not the pixels they grew to).\n\n"
                 "Figure: `figure_propagation.png`.")
         return text, {"propagation": rows, "per_scene": per_scene}
