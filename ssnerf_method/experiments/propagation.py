@@ -320,11 +320,17 @@ class PropagationStudy(StudyConfig):
         predict = model_predictor(pipeline)
         split = {ON_SEEN: None, ON_UNSEEN: None}
         if seen is not None:
-            renders: Dict[int, Dict[str, torch.Tensor]] = {}  # (each test view rendered once for both)
+            renders: Dict[int, Dict[str, torch.Tensor]] = {}
+
+            def rendered(cameras, index: int) -> Dict[str, torch.Tensor]:
+                """`predict`, each test view rendered once for both splits."""
+                if index not in renders:
+                    renders[index] = predict(cameras, index)
+                return renders[index]
+
             for column, side in ((ON_SEEN, 0), (ON_UNSEEN, 1)):
-                split[column] = score_predictor(
-                    lambda cameras, index: renders.setdefault(index, predict(cameras, index)), test, [spec],
-                    num_classes, pixels={index: pair[side] for index, pair in seen.items()}).get(key)
+                split[column] = score_predictor(rendered, test, [spec], num_classes,
+                                                pixels={index: pair[side] for index, pair in seen.items()}).get(key)
         if cached is not None:  # (a cache from before the split was reported: the rest of it stands)
             cached.update(split)
             write_text_atomic(cache, json.dumps(cached, indent=2))
