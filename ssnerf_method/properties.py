@@ -48,6 +48,11 @@ MAX_NON_UNIT_FRACTION = 0.05
 resizing shorten a few)."""
 
 
+UNNAMED_LOGIT = -1e4
+"""Rendered logit of a spare class slot without a name (the model's `spare_classes`): it is never the most likely
+class (finite, so that a softmax stays defined) and counts for nothing in `class_uncertainty`."""
+
+
 class LabelFileError(UserError, ValueError):
     """A property file that cannot be used for training; the message names the file and the fix."""
 
@@ -185,6 +190,11 @@ class PropertyKind(ABC):
         """Extra per-ray outputs in the conventions of nerfstudio's exporters (`ns-export`); none by default."""
         return {}
 
+    def display_extras(self, name: str) -> List[str]:
+        """Outputs of this property that people look at besides `name` (the viewer's output list, `ns-render`'s
+        names), among `export_outputs`' keys; none by default."""
+        return []
+
     def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
         """Per-ray values this property gives each point of a labelled point cloud, by PLY property name: its
         rendered prediction, one float per channel (`name`, or `name_0`, `name_1`, ...)."""
@@ -219,6 +229,16 @@ class ColorKind(PropertyKind):
         """8-bit `red`, `green`, `blue`, as point-cloud viewers expect."""
         colours = (outputs[name].clamp(0.0, 1.0) * 255.0).round().to(torch.uint8)
         return dict(zip(("red", "green", "blue"), colours.unbind(-1)))
+
+
+def class_uncertainty(logits: Float[Tensor, "*bs classes"]) -> Float[Tensor, "*bs 1"]:
+    """The entropy of the class probabilities over its largest possible value (the log of the number of named
+    classes: slots at `UNNAMED_LOGIT` are left out), in [0, 1]: 0 for one certain class, 1 for all equally likely."""
+    logits = logits.float()
+    named = (logits > UNNAMED_LOGIT / 2).sum(dim=-1, keepdim=True).clamp(min=2)
+    log_probabilities = torch.log_softmax(logits, dim=-1)
+    entropy = -(log_probabilities.exp() * log_probabilities).sum(dim=-1, keepdim=True)
+    return (entropy / torch.log(named.to(entropy))).clamp(0.0, 1.0)
 
 
 class ClassKind(PropertyKind):
@@ -261,9 +281,21 @@ class ClassKind(PropertyKind):
         """The most likely class id per pixel, (H, W) uint8."""
         return prediction.argmax(dim=-1).cpu().numpy().astype(np.uint8)
 
+    def export_outputs(
+        self, name: str, prediction: Float[Tensor, "*bs channels"], context: RenderContext
+    ) -> Dict[str, Tensor]:
+        """`<name>_uncertainty` (`class_uncertainty`): high where no label has settled the class, on surfaces no
+        labelled frame sees and at class boundaries, so it shows where a stroke in the viewer helps most."""
+        return {f"{name}_uncertainty": class_uncertainty(prediction)}
+
+    def display_extras(self, name: str) -> List[str]:
+        """The uncertainty is shown in the viewer: paint strokes where it is bright."""
+        return [f"{name}_uncertainty"]
+
     def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
-        """The most likely class id (uint8; the names go in the PLY header)."""
-        return {name: outputs[name + self.prediction_suffix].argmax(dim=-1).to(torch.uint8)}
+        """The most likely class id (uint8; the names go in the PLY header) and its uncertainty (float)."""
+        return {name: outputs[name + self.prediction_suffix].argmax(dim=-1).to(torch.uint8),
+                f"{name}_uncertainty": outputs[f"{name}_uncertainty"][..., 0].float()}
 
 
 class NormalKind(PropertyKind):

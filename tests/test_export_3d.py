@@ -102,14 +102,14 @@ def test_labelled_point_cloud_round_trip(trained_scene, renders, tmp_path: Path)
     ply = PlyData.read(str(tmp_path / "points.ply"))
     vertices = ply["vertex"].data
     names = set(vertices.dtype.names)
-    assert {"x", "y", "z", "red", "green", "blue", "nx", "ny", "nz", "semantics", "shading", "keypoints", "edges",
-            "view", "row", "col"} <= names
+    assert {"x", "y", "z", "red", "green", "blue", "nx", "ny", "nz", "semantics", "semantics_uncertainty", "shading",
+            "keypoints", "edges", "view", "row", "col"} <= names
     assert len(vertices) == len(arrays["x"]) == 3000
     classes = json.loads((tmp_path / "classes.json").read_text())
     assert [comment for comment in ply.comments if comment.startswith("class 0 ")] == [f"class 0 {classes['names'][0]}"]
     normals = np.stack([vertices[name] for name in ("nx", "ny", "nz")], -1)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=-1), 1.0, atol=1e-3)
-    for name in ("shading", "keypoints", "edges"):
+    for name in ("semantics_uncertainty", "shading", "keypoints", "edges"):
         assert vertices[name].dtype == np.float32 and 0.0 <= vertices[name].min() <= vertices[name].max() <= 1.0
 
     _, data = renders

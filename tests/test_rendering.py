@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -16,10 +17,12 @@ from ssnerf_method.model.losses import LOSSES, cross_entropy_loss, l1_loss, mse_
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 from ssnerf_method.properties import (
     SEMANTIC_IGNORE,
+    UNNAMED_LOGIT,
     ClassKind,
     NormalKind,
     RenderContext,
     ScalarKind,
+    class_uncertainty,
 )
 from ssnerf_method.rendering.sampling import RaySampling, SampleLevel, SamplingResult
 from ssnerf_method.rendering.weights import nerfacc_weights, volume_weights
@@ -188,6 +191,9 @@ def test_model_renders_semantic_logits_then_softmax_and_cross_entropy() -> None:
     # display: palette colour of the argmax of the rendered logits (class 1), not of rendered probabilities (0)
     assert not torch.allclose(model.palette[0], model.palette[1])
     assert torch.allclose(rendered["semantics"], model.palette[1][None])
+    probabilities = torch.softmax(torch.tensor([0.7, 3.0]), dim=-1)  # uncertainty from the rendered logits too
+    entropy = -(probabilities * probabilities.log()).sum()
+    assert torch.allclose(rendered["semantics_uncertainty"], (entropy / math.log(2.0)).reshape(1, 1), atol=1e-6)
     assert torch.allclose(rendered["shading_value"], torch.tensor([[0.48]]))
     assert torch.allclose(rendered["shading"], torch.tensor([[0.48, 0.48, 0.48]]))  # grey, range fixed to [0, 1]
     # world normal +x faces this camera: camera frame (0, 0, 1) -> encoding (0.5, 0.5, 1)
@@ -209,6 +215,38 @@ def test_model_renders_semantic_logits_then_softmax_and_cross_entropy() -> None:
     assert torch.isclose(losses["normals_loss"], torch.tensor(0.0), atol=1e-10)
     assert torch.isclose(losses["shading_loss"], torch.tensor(0.0), atol=1e-7)
     assert set(losses) == {"rgb_loss", "semantics_loss", "normals_loss", "shading_loss"}
+
+
+def test_class_uncertainty_is_entropy_over_the_named_classes() -> None:
+    """0 for one certain class, 1 for the named classes equally likely, whatever spare slots the model holds; the
+    point cloud gets it beside the class id."""
+    named = torch.tensor([[30.0, 0.0, 0.0], [1.0, 1.0, 1.0], [2.0, 1.0, 0.0]])
+    spare = torch.cat([named, torch.full((3, 2), UNNAMED_LOGIT)], dim=-1)
+    for logits in (named, spare):
+        uncertainty = class_uncertainty(logits)
+        assert uncertainty.shape == (3, 1)
+        assert uncertainty[0, 0] < 1e-9 and torch.isclose(uncertainty[1, 0], torch.tensor(1.0))
+        assert 0.5 < uncertainty[2, 0] < 0.9
+    assert torch.allclose(class_uncertainty(spare), class_uncertainty(named))
+    exported = ClassKind().export_outputs("semantics", spare, RenderContext())
+    assert set(exported) == {"semantics_uncertainty"} and ClassKind().display_extras("semantics") == list(exported)
+    values = ClassKind().point_values("semantics", {"semantics_logits": spare, **exported})
+    assert values["semantics"].tolist() == [0, 0, 0] and values["semantics_uncertainty"].shape == (3,)
+
+
+def test_uncertainty_detection_figures_tell_a_useful_map_from_chance() -> None:
+    """The figures `benchmark_uncertainty` reports: 1 for a map bright exactly on the wrong pixels, 0 for the reverse,
+    0.5 (AUROC) for a constant map, about the top share for a random one."""
+    from ssnerf_method.scripts.benchmark_uncertainty import detection
+
+    wrong = np.zeros(1000, dtype=bool)
+    wrong[::10] = True
+    useful = detection(wrong.astype(np.float64), wrong, 0.2)
+    assert useful == {"auroc": 1.0, "wrong_in_top": 1.0}
+    assert detection(1.0 - wrong, wrong, 0.2)["auroc"] == 0.0
+    assert detection(np.full(1000, 0.3), wrong, 0.2)["auroc"] == 0.5
+    chance = detection(np.random.default_rng(0).random(1000), wrong, 0.2)
+    assert abs(chance["auroc"] - 0.5) < 0.1 and abs(chance["wrong_in_top"] - 0.2) < 0.1
 
 
 # ---------------------------------------------------------------------------------------------------- normals

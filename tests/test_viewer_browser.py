@@ -217,6 +217,8 @@ def test_viewer_output_type_dropdown_in_chromium(tmp_path: Path, single_thread, 
                 Image.fromarray(shots[output]).save(artifacts_dir / f"viewer_{output}.png")
                 mark(f"{output} shown")
             box = viewport_box(page)
+            # where the class is unsure (where a stroke helps most) is an output of its own
+            assert "semantics_uncertainty" in report["dropdown_options"], report["dropdown_options"]
 
             # The semantics panel under "Custom Elements": one legend entry per class ("id: name" with its colour),
             # and "Show class", which tints one class over a dimmed RGB in the semantics output.

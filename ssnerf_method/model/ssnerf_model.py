@@ -54,6 +54,7 @@ from ssnerf_method.model.losses import LOSSES, colour_affinity_loss, planar_smoo
 from ssnerf_method.properties import (
     OPTIONAL_PROPERTIES,
     REGISTRY,
+    UNNAMED_LOGIT,
     Branch,
     ClassKind,
     LossName,
@@ -232,11 +233,6 @@ class SSNeRFModelConfig(ModelConfig):
     encoder_init: Optional[Path] = None
     """Checkpoint (.ckpt) of a trained SS-NeRF of the same method whose F_enc initialises this one's at the first step;
     decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
-
-
-UNNAMED_LOGIT = -1e4
-"""Rendered logit of a spare class slot without a name: it is never the most likely class (finite, so that a softmax
-stays defined)."""
 
 
 class SSNeRFModel(Model):
@@ -571,9 +567,11 @@ class SSNeRFModel(Model):
 
     @property
     def display_output_names(self) -> List[str]:
-        """Outputs people look at: RGB and each property as a display image, depth and accumulation. The viewer's
-        output list and `ns-render`'s names; logits, raw values and coarse levels stay internal."""
-        return [spec.name for spec in self.specs] + ["depth", "accumulation"]
+        """Outputs people look at: RGB and each property as a display image (and its kind's `display_extras`, e.g.
+        the class uncertainty), depth and accumulation. The viewer's output list and `ns-render`'s names; logits, raw
+        values and coarse levels stay internal."""
+        return [name for spec in self.specs for name in (spec.name, *spec.kind.display_extras(spec.name))] + [
+            "depth", "accumulation"]
 
     @torch.no_grad()
     def get_outputs_for_camera(self, camera: Cameras, obb_box=None) -> Dict[str, Tensor]:

@@ -3,8 +3,9 @@
 Points are sampled as `ns-export pointcloud` samples them: batches of training rays from the datamanager, each point
 at its ray's rendered depth, kept where the accumulation is above 0.5 and inside the optional oriented box, then
 cleaned of statistical outliers with Open3D (nerfstudio's `std_ratio`). Each vertex carries, from the registry's kinds,
-every trained property: `red green blue` (RGB), `nx ny nz` (the world-frame unit normal), the semantic class id, one
-float per scalar map (shading, keypoints, edges), and where it came from (`view`, `row`, `col`: the training image and
+every trained property: `red green blue` (RGB), `nx ny nz` (the world-frame unit normal), the semantic class id and
+its uncertainty (`semantics_uncertainty`, 0 to 1: drop points above a threshold for cleaner labels), one float per
+scalar map (shading, keypoints, edges), and where it came from (`view`, `row`, `col`: the training image and
 pixel), so that any value can be checked against that view's render. The class names and colours are in the PLY's
 header comments and in `classes.json`; `--split-by-class` also writes one PLY per class present.
 """
