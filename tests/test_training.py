@@ -29,7 +29,9 @@ EXPECTED_OUTPUTS = {
 }
 """`render_camera`'s outputs (display images, and the predictions stored apart from them) and their channels (class
 logits: the dataset's classes and the spare slots the viewer's Label panel can name)."""
-DISPLAY_OUTPUTS = {*REGISTRY, "depth", "accumulation"}
+DISPLAY_EXTRAS = {extra for name, spec in REGISTRY.items() for extra in spec.kind.display_extras(name)}
+"""One-channel maps shown beside the properties' images (the class uncertainty)."""
+DISPLAY_OUTPUTS = {*REGISTRY, *DISPLAY_EXTRAS, "depth", "accumulation"}
 """What the viewer lists and `ns-render` can write: nothing internal."""
 
 
@@ -158,8 +160,11 @@ def test_lite_checkpoint_round_trip(lite_run) -> None:
         assert torch.isfinite(outputs[name]).all(), name
     shown = pipeline.model.get_outputs_for_camera(camera)  # the viewer's and ns-render's call
     assert set(shown) == DISPLAY_OUTPUTS
-    for name in DISPLAY_OUTPUTS - {"depth", "accumulation"}:
+    for name in DISPLAY_OUTPUTS - DISPLAY_EXTRAS - {"depth", "accumulation"}:
         assert shown[name].shape == (HEIGHT, WIDTH, 3) and torch.equal(shown[name], outputs[name]), name
+    assert DISPLAY_EXTRAS == {"semantics_uncertainty"}
+    for name in DISPLAY_EXTRAS:
+        assert shown[name].shape == (HEIGHT, WIDTH, 1) and 0.0 <= shown[name].min() <= shown[name].max() <= 1.0, name
     # scalar maps are shown in the fixed range [0, 1] (grey): a value of v is the colour (v, v, v)
     assert torch.allclose(shown["shading"], outputs["shading_value"].clamp(0, 1).expand(-1, -1, 3))
     # the loaded weights are the trained ones: the test view's colour is learnt, not the init's grey
