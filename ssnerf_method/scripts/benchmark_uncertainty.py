@@ -18,7 +18,6 @@ from pathlib import Path
 from typing import Dict, List
 
 import numpy as np
-import torch
 import tyro
 from scipy.stats import rankdata
 
@@ -26,6 +25,7 @@ from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.io import write_json_atomic
+from ssnerf_method.experiments.propagation import model_predictor
 from ssnerf_method.properties import class_property, class_uncertainty
 
 
@@ -61,11 +61,10 @@ def score_run(config: Path, top_share: float, seed: int) -> Dict[str, float]:
     spec = class_property()
     test = pipeline.datamanager.eval_dataset
     num_classes = pipeline.model.num_classes
+    predict = model_predictor(pipeline)
     uncertainties, wrongs = [], []
     for index in range(len(test)):
-        with torch.no_grad():
-            outputs = pipeline.model.render_camera(test.cameras[index:index + 1])
-        logits = outputs[spec.prediction_key].float().cpu()
+        logits = predict(test.cameras, index)[spec.name].float()
         label = spec.label(test[index], num_classes)
         valid = spec.kind.valid(label)
         uncertainties.append(class_uncertainty(logits)[..., 0][valid].numpy())
