@@ -30,9 +30,8 @@ from PIL import Image, ImageDraw, ImageFont
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests"))
 
-from nerfstudio.scripts.train import main as train_main  # noqa: E402
-
 from ssnerf_method.data.strokes import STROKES_FILE, StrokeStore  # noqa: E402
+from ssnerf_method.engine.trainer import train_in_process  # noqa: E402
 from ssnerf_method.experiments.transfer import evenly_spaced  # noqa: E402
 from ssnerf_method.labels.encoding import SEMANTIC_IGNORE  # noqa: E402
 from ssnerf_method.method_configs import ssnerf_lite_config  # noqa: E402
@@ -97,7 +96,7 @@ def train(scene: Path, output: Path, steps: int, load_dir: Path | None = None) -
     config.steps_per_eval_batch = config.steps_per_eval_image = config.steps_per_eval_all_images = 10**6
     config.logging.local_writer.enable = False
     config.load_dir = load_dir
-    train_main(config)
+    train_in_process(config)
     return config.get_base_dir() / "config.yml"
 
 

@@ -127,8 +127,7 @@ def trained_scene(tmp_path_factory) -> Tuple[Path, Path]:
     every property trained on it for 150 steps at the benchmark's --quick sizes (one thread)."""
     import torch
 
-    from nerfstudio.scripts.train import main as train_main
-
+    from ssnerf_method.engine.trainer import train_in_process
     from ssnerf_method.experiments.benchmark import shrink_for_quick
     from ssnerf_method.method_configs import ssnerf_lite_config
     from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
@@ -147,5 +146,5 @@ def trained_scene(tmp_path_factory) -> Tuple[Path, Path]:
     config.max_num_iterations = config.steps_per_save = 150
     config.steps_per_eval_batch = config.steps_per_eval_image = config.steps_per_eval_all_images = 10**6
     config.logging.local_writer.enable = False
-    train_main(config)
+    train_in_process(config)
     return scene, root / "outputs" / "tiny" / "ssnerf-lite" / "run" / "config.yml"

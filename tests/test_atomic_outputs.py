@@ -56,8 +56,8 @@ def test_a_benchmark_killed_while_writing_a_runs_metrics_rescores_that_run(tmp_p
     result = bench.run_dir(NERF) / "metrics.json"
 
     trainings = []
-    train = benchmark.train_main
-    monkeypatch.setattr(benchmark, "train_main", lambda trainer: (trainings.append(trainer), train(trainer)))
+    train = benchmark.train_in_process
+    monkeypatch.setattr(benchmark, "train_in_process", lambda trainer: (trainings.append(trainer), train(trainer)))
     written = {}
 
     def killed_mid_write(path: Path, text: str) -> None:
@@ -77,7 +77,7 @@ def test_a_benchmark_killed_while_writing_a_runs_metrics_rescores_that_run(tmp_p
     leftover.write_text(written["text"][: len(written["text"]) // 2])
 
     monkeypatch.undo()
-    monkeypatch.setattr(benchmark, "train_main", lambda trainer: (trainings.append(trainer), train(trainer)))
+    monkeypatch.setattr(benchmark, "train_in_process", lambda trainer: (trainings.append(trainer), train(trainer)))
     metrics = bench.train_and_score(nerf)  # the same command, run again
     assert len(trainings) == 1  # rescored from the final checkpoint, not retrained
     saved, first = json.loads(result.read_text()), json.loads(written["text"])

@@ -87,7 +87,7 @@ def test_quick_benchmark_end_to_end_then_resumes(tmp_path: Path, monkeypatch) ->
     def refuse(*args, **kwargs):
         raise AssertionError("a finished step was redone")
 
-    monkeypatch.setattr(benchmark, "train_main", refuse)
+    monkeypatch.setattr(benchmark, "train_in_process", refuse)
     monkeypatch.setattr(HybridBaseline, "fit", refuse)
     assert run(BenchmarkConfig(quick=True, output=output)) == results
     # another step count is another training: the 30-step results are not passed off as its own

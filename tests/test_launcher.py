@@ -105,7 +105,7 @@ def test_ray_quick_benchmark_matches_the_local_one_and_a_rerun_trains_nothing(tm
     def refuse(*args, **kwargs):
         raise AssertionError("a finished run was redone")
 
-    monkeypatch.setattr(benchmark, "train_main", refuse)
+    monkeypatch.setattr(benchmark, "train_in_process", refuse)
     monkeypatch.setattr(ray, "init", refuse)  # nothing left to do: no Ray instance is even started
     rerun = run(BenchmarkConfig(quick=True, output=distributed, launcher="ray", scenes=scenes))
     assert {scene: set(rows) for scene, rows in rerun.items()} == {scene: set(rows) for scene, rows in

@@ -89,7 +89,7 @@ def test_quick_studies_end_to_end_share_runs_and_resume(tmp_path: Path, monkeypa
         "with RGB (walkthrough_seed_0)", "without RGB (walkthrough_seed_0)"]
 
     calls = []
-    monkeypatch.setattr(benchmark, "train_main", lambda config: calls.append(config))
+    monkeypatch.setattr(benchmark, "train_in_process", lambda config: calls.append(config))
     run_study(BranchStudy(quick=True, output=output, properties=("semantics", "edges")))  # all done: nothing trains
     assert calls == []
     monkeypatch.undo()

@@ -15,6 +15,7 @@ from PIL import Image
 from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.utils.eval_utils import eval_setup
 
+from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.experiments.benchmark import shrink_for_quick
 from ssnerf_method.method_configs import SPARE_CLASSES, ssnerf_config, ssnerf_lite_config
 from ssnerf_method.metrics import METRICS
@@ -230,3 +231,30 @@ def test_configs_saved_before_the_pipeline_moved_still_load() -> None:
             "_target: !!python/name:ssnerf_method.evaluation.pipeline.SSNeRFPipeline ''\n")
     config = yaml.load(text, Loader=yaml.Loader)
     assert isinstance(config, SSNeRFPipelineConfig) and config._target is SSNeRFPipeline
+
+
+def test_trainings_in_one_process_each_log_only_into_their_own_event_file(tmp_path, monkeypatch):
+    """nerfstudio keeps its event writers in a module-level list; `train_in_process` takes out those a training
+    added, so that the next training in the process (a study's next run) does not also log into this one's file."""
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    from nerfstudio.scripts import train
+    from nerfstudio.utils import writer
+
+    def training(config: TrainerConfig) -> None:
+        """What a training does with its writers: set them up, log, and flush every writer there is."""
+        writer.setup_event_writer(False, True, False, log_dir=config.output_dir, experiment_name="run")
+        writer.put_scalar("loss", float(config.max_num_iterations), step=0)
+        writer.write_out_storage()
+        for each in writer.EVENT_WRITERS:
+            each.tb_writer.flush()
+
+    monkeypatch.setattr(writer, "EVENT_WRITERS", [])
+    monkeypatch.setattr(train, "main", training)
+    for run in (1, 2):
+        train_in_process(TrainerConfig(output_dir=tmp_path / f"run{run}", max_num_iterations=run))
+    assert writer.EVENT_WRITERS == []
+    for run in (1, 2):
+        events = EventAccumulator(str(tmp_path / f"run{run}"))
+        events.Reload()
+        assert [event.value for event in events.Scalars("loss")] == [run]

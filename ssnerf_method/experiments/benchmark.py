@@ -28,12 +28,12 @@ import torch
 from nerfstudio.engine.schedulers import MultiStepSchedulerConfig
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.pipelines.base_pipeline import Pipeline
-from nerfstudio.scripts.train import main as train_main
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.atomic import save_torch_atomic, write_text_atomic
 from ssnerf_method.data.spacing import dataset_spacing, pose_spacing
+from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.evaluation.figures import property_grid, shown, shown_label
 from ssnerf_method.evaluation.heuristic import (
@@ -257,7 +257,7 @@ class SceneBenchmark:
             what = ", ".join(run.properties) or "RGB only"
             CONSOLE.rule(f"{self.name}: training {run.name} ({what}) for {self.steps} steps")
             start = time.time()
-            train_main(trainer)
+            train_in_process(trainer)
             seconds = round(time.time() - start, 1)
         _, pipeline, _, _ = eval_setup(self.config_path(run.name), test_mode="test")
         metrics = pipeline.get_average_eval_image_metrics()

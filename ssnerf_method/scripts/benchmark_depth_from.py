@@ -32,11 +32,11 @@ import numpy as np
 import tyro
 from PIL import Image
 
-from nerfstudio.scripts.train import main as train_main
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.io import write_json_atomic
 from ssnerf_method.data.transforms import load_transforms
+from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.experiments.benchmark import BENCHMARK_SCENE
 from ssnerf_method.labelling.label_dataset import LabelDatasetBase, LabelDatasetConfig, label_dataset
 from ssnerf_method.labels.encoding import decode_normals
@@ -117,7 +117,7 @@ def train(config: BenchmarkDepthFromConfig, capture: Path) -> Dict:
     if not checkpoint.is_file():
         CONSOLE.rule(f"Training {config.model_name} {METHOD} for {config.steps} steps on {capture}")
         start = time.time()
-        train_main(trainer)
+        train_in_process(trainer)
         seconds = round(time.time() - start, 1)
     return {"config": config_path, "train_seconds": seconds}
 

@@ -22,11 +22,11 @@ from PIL import Image
 from rich.table import Table
 
 from nerfstudio.pipelines.base_pipeline import Pipeline
-from nerfstudio.scripts.train import main as train_main
 from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.atomic import write_text_atomic
+from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.evaluation.figures import display_image, property_grid
 from ssnerf_method.evaluation.heuristic import nearest_view_copy
 from ssnerf_method.evaluation.scoring import score_predictor
@@ -137,7 +137,7 @@ def run(config: DemoConfig) -> Dict[str, Dict[str, float]]:
         f"(the same as: ns-train {method} --data {scene_dir} --max-num-iterations {trainer_config.max_num_iterations})"
     )
     train_start = time.time()
-    train_main(trainer_config)
+    train_in_process(trainer_config)
     train_seconds = time.time() - train_start
 
     config_path = trainer_config.get_base_dir() / "config.yml"
