@@ -234,15 +234,17 @@ def test_configs_saved_before_the_pipeline_moved_still_load() -> None:
 
 
 def test_trainings_in_one_process_each_log_only_into_their_own_event_file(tmp_path, monkeypatch):
-    """nerfstudio keeps its event writers in a module-level list; `train_in_process` takes out those a training
-    added, so that the next training in the process (a study's next run) does not also log into this one's file."""
+    """nerfstudio keeps its event writers and profilers in module-level lists; `train_in_process` takes out those a
+    training added, so that the next training in the process (a study's next run) does not also log into this one's
+    file."""
     from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
 
     from nerfstudio.scripts import train
-    from nerfstudio.utils import writer
+    from nerfstudio.utils import profiler, writer
 
     def training(config: TrainerConfig) -> None:
         """What a training does with its writers: set them up, log, and flush every writer there is."""
+        profiler.setup_profiler(config.logging, config.output_dir)
         writer.setup_event_writer(False, True, False, log_dir=config.output_dir, experiment_name="run")
         writer.put_scalar("loss", float(config.max_num_iterations), step=0)
         writer.write_out_storage()
@@ -250,10 +252,11 @@ def test_trainings_in_one_process_each_log_only_into_their_own_event_file(tmp_pa
             each.tb_writer.flush()
 
     monkeypatch.setattr(writer, "EVENT_WRITERS", [])
+    monkeypatch.setattr(profiler, "PROFILER", [])
     monkeypatch.setattr(train, "main", training)
     for run in (1, 2):
         train_in_process(TrainerConfig(output_dir=tmp_path / f"run{run}", max_num_iterations=run))
-    assert writer.EVENT_WRITERS == []
+    assert writer.EVENT_WRITERS == [] and profiler.PROFILER == []
     for run in (1, 2):
         events = EventAccumulator(str(tmp_path / f"run{run}"))
         events.Reload()

@@ -14,7 +14,7 @@ from typing import Any, Dict, Tuple, Type
 
 from nerfstudio.engine.trainer import Trainer, TrainerConfig
 from nerfstudio.pipelines.base_pipeline import Pipeline
-from nerfstudio.utils import writer
+from nerfstudio.utils import profiler, writer
 from nerfstudio.utils.decorators import check_main_thread
 from nerfstudio.utils.rich_utils import CONSOLE
 
@@ -111,19 +111,20 @@ class SSNeRFTrainerConfig(TrainerConfig):
 
 
 def train_in_process(config: TrainerConfig) -> None:
-    """`ns-train`'s main on `config`, leaving no event writer behind. nerfstudio keeps its writers (TensorBoard, the
-    console's stats) in a module-level list that only grows: without this, every later training in the same process
-    (a study's runs one after another, or on one Ray worker) also logs into the earlier runs' event files."""
+    """`ns-train`'s main on `config`, leaving no event writer or profiler behind. nerfstudio keeps them in
+    module-level lists that only grow: without this, every later training in the same process (a study's runs one
+    after another, or on one Ray worker) also logs into the earlier runs' event files, and its profile adds to the
+    first run's."""
     from nerfstudio.scripts.train import main as train_main  # (it loads every method, this plugin's, which imports us)
 
-    before = len(writer.EVENT_WRITERS)
+    writers, profilers = len(writer.EVENT_WRITERS), len(profiler.PROFILER)
     try:
         train_main(config)
     finally:
-        for added in writer.EVENT_WRITERS[before:]:
+        for added in writer.EVENT_WRITERS[writers:]:
             if isinstance(added, writer.TensorboardWriter):
                 added.tb_writer.close()
-        del writer.EVENT_WRITERS[before:]
+        del writer.EVENT_WRITERS[writers:], profiler.PROFILER[profilers:]
 
 
 def load_for_eval(config: TrainerConfig, pipeline: Pipeline) -> Tuple[Path, int]:
