@@ -242,6 +242,34 @@ def test_seen_pixels_split_each_test_view_by_what_the_labelled_frames_see(traine
 
 
 @pytest.mark.filterwarnings("ignore")
+def test_propagation_click_draws_get_folders_and_runs_of_their_own(trained_scene, tmp_path: Path) -> None:
+    """Another `--seed` draws other clicks into a copy and runs of its own: a second draw into the same output folder
+    never reuses the first draw's labels or models. The frame settings, which no seed changes, are shared."""
+    scene, _ = trained_scene
+    benches = {}
+    for seed in (0, 1):
+        study = PropagationStudy(quick=True, output=tmp_path, scenes=(scene,), frames=(1,), pixels=(1,), seed=seed)
+        made = study.benchmarks(study.benchmark_config())
+        benches[seed] = {setting.name: bench for (_, setting), bench in made.items()}
+    assert benches[0]["1 frame"].folder == benches[1]["1 frame"].folder
+    assert benches[0]["all frames"].scene == benches[1]["all frames"].scene == scene
+    for name in ("1 px/class/frame", "1 px/class/frame, grown"):
+        first, second = benches[0][name], benches[1][name]
+        assert first.folder != second.folder and first.scene != second.scene
+        assert second.scene.name.endswith("-draw1") and not first.scene.name.endswith("-draw0")
+
+        def labels(bench) -> list:
+            """The copy's own label images (the clicks; test frames keep the scene's)."""
+            copy = json.loads((bench.scene / "transforms.json").read_text())
+            return [np.asarray(Image.open(path)) for path in (frame.get("semantics_file_path") for frame in
+                                                              copy["frames"])
+                    if path and Path(path).is_relative_to(bench.scene.resolve())]
+
+        drawn = [labels(first), labels(second)]
+        assert len(drawn[0]) == len(drawn[1]) > 0
+        assert any((a != b).any() for a, b in zip(*drawn))  # other clicks
+
+
 def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trained_scene, tmp_path: Path) -> None:
     torch.set_num_threads(1)
     scene, _ = trained_scene

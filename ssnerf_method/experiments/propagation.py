@@ -102,9 +102,13 @@ class Setting:
             return f"{self.pixels} px/class/frame" + ("" if self.grow is None else ", grown")
         return ALL_FRAMES
 
-    def folder(self, scene: Path) -> str:
+    def folder(self, scene: Path, seed: int = 0) -> str:
+        """The labelled copy's folder (and its runs' name). The pixel settings' clicks depend on the study's `seed`:
+        a seed other than 0 is in the name, so that another draw never reuses the copy or the runs of an earlier one
+        (seed 0 keeps the plain name of the runs made before draws were named)."""
         suffix = f"{self.frames}frames" if self.frames is not None else f"{self.pixels}pixels"
-        return f"{scene.name}-{suffix}" + ("" if self.grow is None else f"-grown{self.grow:g}")
+        drawn = f"-draw{seed}" if self.pixels is not None and seed != 0 else ""
+        return f"{scene.name}-{suffix}" + ("" if self.grow is None else f"-grown{self.grow:g}") + drawn
 
 
 def split_images(scene: Path) -> Tuple[List[Path], List[Path]]:
@@ -240,7 +244,8 @@ class PropagationStudy(StudyConfig):
     """Each c's clicks are also grown over the image segments they fall in, with this segmentation scale (as
     `ssnerf-label --semantics-grow`); 0 leaves the grown rows out."""
     seed: int = 0
-    """Seed of the random pixels of the pixel settings."""
+    """Seed of the random pixels of the pixel settings (a seed other than 0 names their folders and runs `-draw<seed>`,
+    so one output folder can hold several draws)."""
     train_views_scored: int = 12
     """Unlabelled training views scored per model (evenly spaced among them)."""
 
@@ -265,7 +270,7 @@ class PropagationStudy(StudyConfig):
                 if setting == Setting():
                     benches[(scene.name, setting)] = SceneBenchmark(config, scene, scene.name)
                     continue
-                root = config.output / "propagation" / setting.folder(scene)
+                root = config.output / "propagation" / setting.folder(scene, self.seed)
                 if not (root / "transforms.json").is_file():
                     make_propagation_dataset(scene, root, setting, self.seed)
                 benches[(scene.name, setting)] = SceneBenchmark(config, root, root.name)
