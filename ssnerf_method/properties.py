@@ -187,7 +187,8 @@ class PropertyKind(ABC):
     def export_outputs(
         self, name: str, prediction: Float[Tensor, "*bs channels"], context: RenderContext
     ) -> Dict[str, Tensor]:
-        """Extra per-ray outputs in the conventions of nerfstudio's exporters (`ns-export`); none by default."""
+        """Extra per-ray outputs in the conventions of nerfstudio's exporters (`ns-export`); none by default. Rendered
+        in eval mode only (the viewer, `ns-render` and the exporters render so): no training step computes them."""
         return {}
 
     def display_extras(self, name: str) -> List[str]:

@@ -194,6 +194,9 @@ def test_model_renders_semantic_logits_then_softmax_and_cross_entropy() -> None:
     probabilities = torch.softmax(torch.tensor([0.7, 3.0]), dim=-1)  # uncertainty from the rendered logits too
     entropy = -(probabilities * probabilities.log()).sum()
     assert torch.allclose(rendered["semantics_uncertainty"], (entropy / math.log(2.0)).reshape(1, 1), atol=1e-6)
+    model.train()  # the exporters' outputs are for eval-mode renders: a training step does not compute them
+    assert "semantics_uncertainty" not in model.get_outputs(bundle) and "semantics_logits" in model.get_outputs(bundle)
+    model.eval()
     assert torch.allclose(rendered["shading_value"], torch.tensor([[0.48]]))
     assert torch.allclose(rendered["shading"], torch.tensor([[0.48, 0.48, 0.48]]))  # grey, range fixed to [0, 1]
     # world normal +x faces this camera: camera frame (0, 0, 1) -> encoding (0.5, 0.5, 1)

@@ -404,7 +404,8 @@ class SSNeRFModel(Model):
         for spec in self.specs:
             if spec.prediction_key != spec.name:
                 outputs[spec.name] = spec.display(outputs[spec.prediction_key], self.palette)
-            outputs.update(spec.kind.export_outputs(spec.name, outputs[spec.prediction_key], context))
+            if not self.training:  # (for the viewer, ns-render and the exporters, which all render in eval mode)
+                outputs.update(spec.kind.export_outputs(spec.name, outputs[spec.prediction_key], context))
         shown = None if self.semantic_classes is None else self.semantic_classes.highlighted_class
         if self.class_spec is not None and shown is not None:
             outputs[self.class_spec.name] = highlight_class(
