@@ -87,17 +87,22 @@ def confusion_matrix(
     return torch.bincount(index, minlength=num_classes * num_classes).reshape(num_classes, num_classes).double()
 
 
-def miou_from_confusion(confusion: Tensor) -> Dict[str, float]:
-    """Mean IoU over the classes present in the labels (a class absent from the ground truth is left out even if
-    predicted), and pixel accuracy. NaN when nothing is labelled."""
+def class_iou(confusion: Float[Tensor, "classes classes"]) -> Float[Tensor, " classes"]:
+    """Each class's IoU; NaN for a class absent from the labels (whatever was predicted as it)."""
     true_positive = confusion.diag()
     label_count = confusion.sum(dim=1)
     union = label_count + confusion.sum(dim=0) - true_positive
-    present = label_count > 0
+    return torch.where(label_count > 0, true_positive / union.clamp(min=1), torch.nan)
+
+
+def miou_from_confusion(confusion: Tensor) -> Dict[str, float]:
+    """Mean IoU over the classes present in the labels (a class absent from the ground truth is left out even if
+    predicted), and pixel accuracy. NaN when nothing is labelled."""
+    iou = class_iou(confusion)
+    present = ~iou.isnan()
     if not present.any():
         return {"miou": _nan(), "acc": _nan()}
-    iou = true_positive[present] / union[present]
-    return {"miou": float(iou.mean()), "acc": float(true_positive.sum() / confusion.sum())}
+    return {"miou": float(iou[present].mean()), "acc": float(confusion.diag().sum() / confusion.sum())}
 
 
 class MIoUMetric(Metric):

@@ -18,7 +18,17 @@ from nerfstudio.utils.eval_utils import eval_setup
 from ssnerf_method.experiments import benchmark, sparsity
 from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
-from ssnerf_method.experiments.propagation import CEILING, ON_SEEN, ON_UNSEEN, SEEN, PropagationStudy, seen_pixels
+from ssnerf_method.experiments.propagation import (
+    BOUND,
+    CEILING,
+    CLASS_IOU,
+    ON_SEEN,
+    ON_UNSEEN,
+    SEEN,
+    PropagationStudy,
+    dense_bound,
+    seen_pixels,
+)
 from ssnerf_method.experiments.report import BASELINE_ROWS
 from ssnerf_method.experiments.sparsity import SparsityStudy
 from ssnerf_method.experiments.studies import (
@@ -270,6 +280,14 @@ def test_propagation_click_draws_get_folders_and_runs_of_their_own(trained_scene
         assert any((a != b).any() for a, b in zip(*drawn))  # other clicks
 
 
+def test_dense_bound_scores_the_classes_no_label_shows_zero_and_averages_over_every_test_class() -> None:
+    dense = {CLASS_IOU: {"1": 0.5, "2": 0.9, "4": 0.4}}
+    assert dense_bound({"labelled_test_class_ids": [1, 2, 4]}, dense) == pytest.approx(0.6)
+    assert dense_bound({"labelled_test_class_ids": [1, 2]}, dense) == pytest.approx(1.4 / 3)
+    assert dense_bound({"labelled_test_class_ids": []}, dense) == 0.0
+    assert dense_bound({}, dense) is None and dense_bound({"labelled_test_class_ids": [1]}, {}) is None
+
+
 def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trained_scene, tmp_path: Path) -> None:
     torch.set_num_threads(1)
     scene, _ = trained_scene
@@ -311,6 +329,14 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
         "propagation"]}
     assert rows["1 frame"][CEILING] == pytest.approx(len(tested & shown) / len(tested))
     assert rows["all frames"][CEILING] == 1.0 and rows["all frames"]["SS-NeRF / all frames"] == 1.0
+    # the dense model's per-class IoU: they average to its mIoU, and with the unlabelled classes at 0 bound the rows
+    dense_iou = results[scene.name]["all frames"][CLASS_IOU]
+    assert {int(index) for index in dense_iou} == tested
+    assert np.mean(list(dense_iou.values())) == pytest.approx(rows["all frames"]["SS-NeRF"], abs=1e-6)
+    assert rows["all frames"][BOUND] == pytest.approx(rows["all frames"]["SS-NeRF"], abs=1e-6)
+    assert rows["1 frame"][BOUND] == pytest.approx(sum(dense_iou[str(c)] for c in tested & shown) / len(tested))
+    assert rows["1 frame"][BOUND] <= rows["all frames"][BOUND]  # the missing class's IoU is lost
+    assert rows["1 px/class/frame"][BOUND] == pytest.approx(rows["all frames"][BOUND])  # clicks show every class
     assert rows["all frames"]["labelled pixels"] == 1.0 > rows["1 frame"]["labelled pixels"] > 0
     assert rows["1 px/class/frame, grown"]["labelled pixels"] == rows["1 px/class/frame"]["labelled pixels"]  # clicks
     # the scene has depth maps: every frame together sees more of the test views than one does, pixels are not frames
@@ -323,8 +349,7 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
             assert rows[name][column] is None if empty else 0.0 <= rows[name][column] <= 1.0
     assert rows["all frames"][ON_SEEN] is not None and rows["all frames"][ON_UNSEEN] is not None
     assert rows["1 px/class/frame"][ON_SEEN] is None and rows["1 px/class/frame"][ON_UNSEEN] is None
-    assert CEILING in (output / "study_propagation.md").read_text() and ON_UNSEEN in (
-        output / "study_propagation.md").read_text()
+    assert all(column in (output / "study_propagation.md").read_text() for column in (CEILING, BOUND, ON_UNSEEN))
     assert np.asarray(Image.open(output / "figure_propagation.png")).std() > 10
 
 

@@ -14,7 +14,9 @@ label (evenly chosen, at most `--train-views-scored` of them; all training views
 pixels are nearly all unlabelled), against the frames' true labels. Beside it, two baselines made from the same labels:
 the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the model's
 rendered depth) and the nearest labelled frame copied. Each row also gives the highest test mIoU any method could
-reach from its labels (`class_coverage`): a class that is in the test views but on no labelled pixel scores 0; and,
+reach from its labels (`class_coverage`): a class that is in the test views but on no labelled pixel scores 0; the
+mIoU it reaches if SS-NeRF carries those labels as well as every frame's labels train it (`BOUND`: the dense model's
+per-class IoU on the classes they show, 0 on the rest); and,
 where the scene has depth maps, the share of test pixels whose surface a labelled frame sees (`seen_pixels`) and
 SS-NeRF's test mIoU on those pixels and on the others apart, which tells what the field carries in 3D (to the seen
 pixels) from what it has to guess (the others). Writes `study_propagation.md` / `.json` and `figure_propagation.png`
@@ -46,7 +48,7 @@ from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder
 from ssnerf_method.evaluation.heuristic import HeuristicBaseline, PinholeView, dataset_depth, nearest_view_copy
-from ssnerf_method.evaluation.scoring import score_predictor
+from ssnerf_method.evaluation.scoring import Predictor, score_predictor
 from ssnerf_method.experiments.benchmark import (
     BenchmarkConfig,
     ModelRun,
@@ -60,6 +62,7 @@ from ssnerf_method.experiments.studies import Results, StudyConfig, single, writ
 from ssnerf_method.experiments.transfer import PATH_KEYS, evenly_spaced
 from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
 from ssnerf_method.labels.segments import SEGMENT_SCALE, grow_in_segments
+from ssnerf_method.metrics import class_iou, confusion_matrix
 from ssnerf_method.properties import REGISTRY, class_property
 
 SSNERF, SSNERF_TRAIN = "SS-NeRF", "SS-NeRF, unlabelled training views"
@@ -70,6 +73,11 @@ the test views)."""
 ALL_FRAMES = "all frames"
 CEILING = "mIoU ceiling (test classes labelled)"
 """Column of the highest test mIoU the labels allow (`class_coverage`)."""
+BOUND = "all frames' SS-NeRF, unlabelled classes at 0"
+"""Column of the mIoU the labels reach if SS-NeRF carries them as well as every frame's labels train it: the dense
+model's per-class test IoU (`CLASS_IOU`) over the classes some labelled pixel shows, the others scored 0."""
+CLASS_IOU = "class_iou"
+"""Key of the dense model's test IoU per class id (as a string) in its scores."""
 SEEN = "test pixels a labelled frame sees"
 """Column of `seen_share` (frame settings only)."""
 ON_SEEN, ON_UNSEEN = "SS-NeRF on seen test pixels", "SS-NeRF on unseen test pixels"
@@ -146,7 +154,28 @@ def class_coverage(scene: Path) -> Dict[str, Any]:
         classes = {int(value) for value in np.unique(np.asarray(Image.open(scene / frame[key])))} - {SEMANTIC_IGNORE}
         (tested if image in test else shown).update(classes)
     return {"test_classes": len(tested), "test_classes_labelled": len(tested & shown),
+            "labelled_test_class_ids": sorted(tested & shown),
             "miou_ceiling": len(tested & shown) / len(tested) if tested else None}
+
+
+def class_ious(predict: Predictor, dataset: SSNeRFDataset, num_classes: int) -> Dict[str, float]:
+    """`predict`'s IoU per class id (as a string; the classes of `dataset`'s labels) over its views."""
+    spec = class_property()
+    confusion = torch.zeros(num_classes, num_classes, dtype=torch.float64)
+    for index in range(len(dataset)):
+        label = spec.label(dataset[index], num_classes)
+        predicted = predict(dataset.cameras, index)[spec.name].argmax(-1).to(label.device)
+        confusion += confusion_matrix(predicted, label[..., 0], spec.kind.valid(label), num_classes).cpu()
+    iou = class_iou(confusion)
+    return {str(index): float(value) for index, value in enumerate(iou) if not value.isnan()}
+
+
+def dense_bound(run: Dict[str, Any], dense: Dict[str, Any]) -> Optional[float]:
+    """`BOUND` for one scene's run, from the dense run's `CLASS_IOU` of that scene; None without them."""
+    ious, shown = dense.get(CLASS_IOU), run.get("labelled_test_class_ids")
+    if not ious or shown is None:
+        return None
+    return sum(ious.get(str(index), 0.0) for index in shown) / len(ious)
 
 
 def seen_pixels(
@@ -313,7 +342,9 @@ class PropagationStudy(StudyConfig):
         spec = class_property()
         key = spec.metric_prefix + "miou"
         cached = json.loads(cache.read_text()) if cache.is_file() else None
-        if cached is not None and (setting.pixels is not None or ON_SEEN in cached):
+        dense = setting == Setting()
+        if cached is not None and (setting.pixels is not None or ON_SEEN in cached) and (
+                not dense or CLASS_IOU in cached):
             # (the coverage is read afresh: caches written before it was reported lack it)
             return {**cached, **class_coverage(bench.scene), **self._record(metrics, bench)}
         pipeline = bench.load(run.name)
@@ -323,19 +354,21 @@ class PropagationStudy(StudyConfig):
         test = bench.test_dataset(pipeline)
         seen = None if setting.pixels is not None else seen_pixels(train, test, labelled)
         predict = model_predictor(pipeline)
-        split = {ON_SEEN: None, ON_UNSEEN: None}
+        renders: Dict[int, Dict[str, torch.Tensor]] = {}
+
+        def rendered(cameras, index: int) -> Dict[str, torch.Tensor]:
+            """`predict` on the test views, each rendered once for every score made of them."""
+            if index not in renders:
+                renders[index] = predict(cameras, index)
+            return renders[index]
+
+        split: Dict[str, Any] = {ON_SEEN: None, ON_UNSEEN: None}
         if seen is not None:
-            renders: Dict[int, Dict[str, torch.Tensor]] = {}
-
-            def rendered(cameras, index: int) -> Dict[str, torch.Tensor]:
-                """`predict`, each test view rendered once for both splits."""
-                if index not in renders:
-                    renders[index] = predict(cameras, index)
-                return renders[index]
-
             for column, side in ((ON_SEEN, 0), (ON_UNSEEN, 1)):
                 split[column] = score_predictor(rendered, test, [spec], num_classes,
                                                 pixels={index: pair[side] for index, pair in seen.items()}).get(key)
+        if dense:
+            split[CLASS_IOU] = class_ious(rendered, test, num_classes)
         if cached is not None:  # (a cache from before the split was reported: the rest of it stands)
             cached.update(split)
             write_text_atomic(cache, json.dumps(cached, indent=2))
@@ -385,7 +418,8 @@ class PropagationStudy(StudyConfig):
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
         """Rows: the settings; columns: each method's mIoU (average over scenes), the share of the dense model's
-        mIoU, the mIoU ceiling of the labels (`class_coverage`), the share of test pixels the labelled frames see and
+        mIoU, the mIoU ceiling of the labels (`class_coverage`) and the dense model's mIoU on the classes they show
+        (`BOUND`), the share of test pixels the labelled frames see and
         SS-NeRF's mIoU on them and on the rest, and the fraction of training pixels labelled."""
         rows = []
         for setting in self.settings():
@@ -396,18 +430,24 @@ class PropagationStudy(StudyConfig):
             dense = average([scenes.get(ALL_FRAMES, {}).get(SSNERF) for scenes in results.values()])
             row["SS-NeRF / all frames"] = None if row[SSNERF] is None or not dense else row[SSNERF] / dense
             row[CEILING] = average([run.get("miou_ceiling") for run in runs])
+            row[BOUND] = average([dense_bound(scenes.get(setting.name, {}), scenes.get(ALL_FRAMES, {}))
+                                  for scenes in results.values()])
             row[SEEN] = average([run.get("seen_by_labelled_frames") for run in runs])
             row[ON_SEEN] = average([run.get(ON_SEEN) for run in runs])
             row[ON_UNSEEN] = average([run.get(ON_UNSEEN) for run in runs])
             row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
             rows.append(row)
-        titles = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, ON_SEEN, ON_UNSEEN, "labelled pixels (fraction)"]
-        columns = [*METHODS, "SS-NeRF / all frames", CEILING, SEEN, ON_SEEN, ON_UNSEEN, "labelled pixels"]
+        shared = [*METHODS, "SS-NeRF / all frames", CEILING, BOUND, SEEN, ON_SEEN, ON_UNSEEN]
+        titles, columns = [*shared, "labelled pixels (fraction)"], [*shared, "labelled pixels"]
         per_scene = {scene: {name: {column: runs[name].get(column) for column in (*METHODS, ON_SEEN, ON_UNSEEN)}
                              for name in runs} for scene, runs in results.items()}
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
+                f"{BOUND}: the mIoU these labels give if SS-NeRF carries them to the test views as well as every "
+                "frame's labels train it (the all-frames model's per-class test IoU, with the classes no label shows "
+                "scored 0); a row below it falls short in propagation, and its distance to the all-frames row is "
+                "what the missing classes cost. "
                 f"{SEEN}: the share of test pixels whose surface some labelled frame sees (with the scene's depth "
                 f"maps; frame settings only); {ON_SEEN} and {ON_UNSEEN}: SS-NeRF's mIoU on those test pixels and on "
                 "the rest (with a depth) apart, each over the classes it shows. Labelled pixels: those labelled "
