@@ -337,6 +337,8 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
     assert rows["1 frame"][BOUND] == pytest.approx(sum(dense_iou[str(c)] for c in tested & shown) / len(tested))
     assert rows["1 frame"][BOUND] <= rows["all frames"][BOUND]  # the missing class's IoU is lost
     assert rows["1 px/class/frame"][BOUND] == pytest.approx(rows["all frames"][BOUND])  # clicks show every class
+    per_scene = json.loads((output / "study_propagation.json").read_text())["tables"]["per_scene"][scene.name]
+    assert per_scene["1 frame"][BOUND] == pytest.approx(rows["1 frame"][BOUND])  # (one scene: its average)
     assert rows["all frames"]["labelled pixels"] == 1.0 > rows["1 frame"]["labelled pixels"] > 0
     assert rows["1 px/class/frame, grown"]["labelled pixels"] == rows["1 px/class/frame"]["labelled pixels"]  # clicks
     # the scene has depth maps: every frame together sees more of the test views than one does, pixels are not frames

@@ -439,7 +439,8 @@ class PropagationStudy(StudyConfig):
             rows.append(row)
         shared = [*METHODS, "SS-NeRF / all frames", CEILING, BOUND, SEEN, ON_SEEN, ON_UNSEEN]
         titles, columns = [*shared, "labelled pixels (fraction)"], [*shared, "labelled pixels"]
-        per_scene = {scene: {name: {column: runs[name].get(column) for column in (*METHODS, ON_SEEN, ON_UNSEEN)}
+        per_scene = {scene: {name: {**{column: runs[name].get(column) for column in (*METHODS, ON_SEEN, ON_UNSEEN)},
+                                    BOUND: dense_bound(runs[name], runs.get(ALL_FRAMES, {}))}
                              for name in runs} for scene, runs in results.items()}
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
