@@ -15,7 +15,13 @@ from nerfstudio.cameras.cameras import Cameras
 
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
-from ssnerf_method.evaluation.heuristic import HeuristicBaseline, HeuristicBaselineConfig, PinholeView, pose_distance
+from ssnerf_method.evaluation.heuristic import (
+    HeuristicBaseline,
+    HeuristicBaselineConfig,
+    PinholeView,
+    nearest_labelled_point,
+    pose_distance,
+)
 from ssnerf_method.evaluation.scoring import score_predictor
 from ssnerf_method.properties import REGISTRY, resolve_properties
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
@@ -128,6 +134,29 @@ def test_holes_come_from_the_next_nearest_view_first() -> None:
     else:
         torch.testing.assert_close(warped["semantics"][:, 3:], first["semantics"][:, :-3])
         torch.testing.assert_close(warped["semantics"][:, :3], second["semantics"][:, 3:6])
+
+
+def test_nearest_labelled_point_gives_each_pixel_the_class_of_the_nearest_labelled_pixel_in_3d() -> None:
+    views = PlaneViews([pose(np.eye(3), [0.0, 0.0, 0.0]), pose(np.eye(3), [0.5, 0.0, 0.0])])
+    clicks = torch.full((SIZE, SIZE, 1), 255.0)
+    clicks[8, 2], clicks[8, 13] = 1.0, 3.0  # two clicks on the plane, at x = -0.55 and x = 0.55
+    views.items[0]["semantics"] = clicks
+    views.items[1]["semantics"] = torch.full((SIZE, SIZE, 1), 255.0)  # a view without labels
+    target_depth = np.full((SIZE, SIZE), DEPTH)
+    target_depth[:, 0] = np.nan  # a column without depth takes its neighbour's class
+    predict = nearest_labelled_point(views, REGISTRY["semantics"], CLASSES,  # type: ignore[arg-type]
+                                     lambda index: np.full((SIZE, SIZE), DEPTH),
+                                     lambda cameras, index: target_depth, sources=[0, 1])
+    columns = torch.arange(SIZE).expand(SIZE, SIZE)
+    # the first view: the class boundary (x = 0) between columns 7 and 8; every row alike (nearness in 3D, not on
+    # the clicked row)
+    assert torch.equal(predict(views.cameras, 0)["semantics"].argmax(-1), torch.where(columns < 8, 1, 3))
+    # the second view, 0.5 to the right: x = 0 lies 5 pixels further left
+    assert torch.equal(predict(views.cameras, 1)["semantics"].argmax(-1), torch.where(columns < 3, 1, 3))
+    nothing = nearest_labelled_point(views, REGISTRY["semantics"], CLASSES,  # type: ignore[arg-type]
+                                     lambda index: np.full((SIZE, SIZE), DEPTH),
+                                     lambda cameras, index: target_depth, sources=[1])
+    assert (nothing(views.cameras, 0)["semantics"].argmax(-1) == 0).all()  # no labelled pixel: void (0) everywhere
 
 
 def test_pose_distance_prefers_the_same_viewing_direction() -> None:

@@ -22,6 +22,7 @@ from ssnerf_method.experiments.propagation import (
     BOUND,
     CEILING,
     CLASS_IOU,
+    NEAREST_POINT,
     ON_SEEN,
     ON_UNSEEN,
     SEEN,
@@ -344,7 +345,7 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
     # the scene has depth maps: every frame together sees more of the test views than one does, pixels are not frames
     assert 1.0 >= rows["all frames"][SEEN] > rows["1 frame"][SEEN] >= 0 and rows["1 px/class/frame"][SEEN] is None
     for row in rows.values():
-        assert all(0.0 <= row[method] <= 1.0 for method in ("SS-NeRF", "Heuristic (labelled frames)"))
+        assert all(0.0 <= row[method] <= 1.0 for method in ("SS-NeRF", "Heuristic (labelled frames)", NEAREST_POINT))
     # SS-NeRF scored apart on the test pixels the labelled frames see and on the rest: frame settings only
     for name in ("1 frame", "all frames"):  # (a split with no pixels has no score: this 1 frame sees no test pixel)
         for column, empty in ((ON_SEEN, rows[name][SEEN] == 0.0), (ON_UNSEEN, rows[name][SEEN] == 1.0)):

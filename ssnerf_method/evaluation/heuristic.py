@@ -20,12 +20,14 @@ import numpy as np
 import torch
 from jaxtyping import Float
 from scipy.ndimage import distance_transform_edt
+from scipy.spatial import cKDTree
 from torch import Tensor
 
 from nerfstudio.cameras.cameras import Cameras
 
 from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
 from ssnerf_method.data.spacing import ANGLE_WEIGHT
+from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
 from ssnerf_method.properties import PropertySpec
 
 
@@ -158,6 +160,43 @@ def dataset_depth(train: SSNeRFDataset, dataparser_scale: float) -> DepthSource:
         return item[DEPTH_KEY][..., 0].numpy().astype(np.float64) * dataparser_scale
 
     return depth
+
+
+def nearest_labelled_point(
+    train: SSNeRFDataset, spec: PropertySpec, num_classes: int, source_depth: DepthSource,
+    target_depth: Callable[[Cameras, int], Float[np.ndarray, "h w"]], sources: Sequence[int],
+) -> Callable[[Cameras, int], Dict[str, Tensor]]:
+    """A predictor of the class property `spec`: every pixel of a view (lifted to 3D with `target_depth`) takes the
+    class of the nearest labelled pixel of the training views `sources` (lifted with `source_depth`). How far labels
+    carry by nearness in space alone: the baseline for sparse labels (clicks, strokes), of which the Heuristic's
+    splat leaves the test views nearly empty. Pixels without a depth take the nearest pixel's class that has one."""
+    points, classes = [], []
+    for index in sources:
+        label = spec.label(train[index], num_classes)
+        world, pixels = PinholeView.from_cameras(train.cameras, index).unproject(source_depth(index))
+        labelled = spec.kind.valid(label).reshape(-1).numpy()[pixels]
+        points.append(world[labelled])
+        classes.append(label.reshape(-1, label.shape[-1])[torch.from_numpy(pixels[labelled])])
+    tree = cKDTree(np.concatenate(points)) if sum(len(chunk) for chunk in points) else None
+    known = torch.cat(classes) if tree is not None else None
+
+    def predict(cameras: Cameras, index: int) -> Dict[str, Tensor]:
+        target = PinholeView.from_cameras(cameras, index)
+        if tree is None or known is None:
+            label = spec.kind.missing(target.width, target.height, num_classes)
+            return {spec.name: spec.kind.label_as_prediction(label, num_classes)}
+        depth = target_depth(cameras, index)
+        world, pixels = target.unproject(depth)
+        flat = torch.full((target.height * target.width, known.shape[-1]), float(SEMANTIC_IGNORE))
+        if len(pixels):
+            flat[torch.from_numpy(pixels)] = known[torch.from_numpy(tree.query(world)[1])]
+            filled = np.zeros(target.height * target.width, dtype=bool)
+            filled[pixels] = True
+            flat = flat[torch.from_numpy(nearest_filled(filled.reshape(target.height, target.width)).reshape(-1))]
+        label = flat.reshape(target.height, target.width, -1)
+        return {spec.name: spec.kind.label_as_prediction(label, num_classes)}
+
+    return predict
 
 
 @dataclass

@@ -11,12 +11,14 @@ on copies of the scene that keep less of the training frames' semantic labels:
 
 Each model is scored on the test views (mIoU, as `ns-eval` computes it) and on the training views that have no
 label (evenly chosen, at most `--train-views-scored` of them; all training views for the pixel settings, whose
-pixels are nearly all unlabelled), against the frames' true labels. Beside it, two baselines made from the same labels:
-the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the model's
-rendered depth) and the nearest labelled frame copied. Each row also gives the highest test mIoU any method could
-reach from its labels (`class_coverage`): a class that is in the test views but on no labelled pixel scores 0; the
-mIoU it reaches if SS-NeRF carries those labels as well as every frame's labels train it (`BOUND`: the dense model's
-per-class IoU on the classes they show, 0 on the rest); and,
+pixels are nearly all unlabelled), against the frames' true labels. Beside it, three baselines made from the same
+labels: the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the
+model's rendered depth), the nearest labelled frame copied, and each pixel given the class of the nearest labelled
+pixel in 3D (`nearest_labelled_point`: the labelled pixels lifted as the Heuristic lifts them, the scored view's
+pixels with the model's rendered depth), which tells what the field's propagation adds to nearness alone. Each row
+also gives the highest test mIoU any method could reach from its labels (`class_coverage`): a class that is in the
+test views but on no labelled pixel scores 0; the mIoU it reaches if SS-NeRF carries those labels as well as every
+frame's labels train it (`BOUND`: the dense model's per-class IoU on the classes they show, 0 on the rest); and,
 where the scene has depth maps, the share of test pixels whose surface a labelled frame sees (`seen_pixels`) and
 SS-NeRF's test mIoU on those pixels and on the others apart, which tells what the field carries in 3D (to the seen
 pixels) from what it has to guess (the others). Writes `study_propagation.md` / `.json` and `figure_propagation.png`
@@ -47,7 +49,13 @@ from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder
-from ssnerf_method.evaluation.heuristic import HeuristicBaseline, PinholeView, dataset_depth, nearest_view_copy
+from ssnerf_method.evaluation.heuristic import (
+    HeuristicBaseline,
+    PinholeView,
+    dataset_depth,
+    nearest_labelled_point,
+    nearest_view_copy,
+)
 from ssnerf_method.evaluation.scoring import Predictor, score_predictor
 from ssnerf_method.experiments.benchmark import (
     BenchmarkConfig,
@@ -64,12 +72,18 @@ from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
 from ssnerf_method.labels.segments import SEGMENT_SCALE, grow_in_segments
 from ssnerf_method.metrics import class_iou, confusion_matrix
 from ssnerf_method.properties import REGISTRY, class_property
+from ssnerf_method.rendering.depth import rendered_z_depth
 
 SSNERF, SSNERF_TRAIN = "SS-NeRF", "SS-NeRF, unlabelled training views"
 HEURISTIC, NEAREST = "Heuristic (labelled frames)", "Nearest labelled frame copied"
-METHODS = (SSNERF, SSNERF_TRAIN, HEURISTIC, NEAREST)
-"""The study's columns: SS-NeRF on the test views and on the unlabelled training views, then the two baselines (on
+NEAREST_POINT = "Nearest labelled point in 3D"
+METHODS = (SSNERF, SSNERF_TRAIN, HEURISTIC, NEAREST, NEAREST_POINT)
+"""The study's columns: SS-NeRF on the test views and on the unlabelled training views, then the three baselines (on
 the test views)."""
+ON_TRAIN = "baselines on the unlabelled training views"
+"""Key of the baselines' mIoU on the unlabelled training views in a setting's scores."""
+DEPTH = "depth"
+"""Key of a view's rendered z-depth in `model_predictor`'s predictions."""
 ALL_FRAMES = "all frames"
 CEILING = "mIoU ceiling (test classes labelled)"
 """Column of the highest test mIoU the labels allow (`class_coverage`)."""
@@ -332,8 +346,9 @@ class PropagationStudy(StudyConfig):
         return results
 
     def score(self, bench: SceneBenchmark, setting: Setting) -> Dict[str, Any]:
-        """A setting's model trained and scored (test views, unlabelled training views) and the two baselines,
-        computed once and kept in `propagation-<method>-<steps>.json` in its runs folder."""
+        """A setting's model trained and scored (test views, unlabelled training views) and the three baselines,
+        computed once and kept in `propagation-<method>-<steps>.json` in its runs folder (a cache written before a
+        score was reported gets that score added, the rest of it standing)."""
         run = self.run_of()
         metrics = bench.train_and_score(run)
         if "failed" in metrics:
@@ -343,8 +358,8 @@ class PropagationStudy(StudyConfig):
         key = spec.metric_prefix + "miou"
         cached = json.loads(cache.read_text()) if cache.is_file() else None
         dense = setting == Setting()
-        if cached is not None and (setting.pixels is not None or ON_SEEN in cached) and (
-                not dense or CLASS_IOU in cached):
+        wanted = {NEAREST_POINT, *([] if setting.pixels is not None else [ON_SEEN]), *([CLASS_IOU] if dense else [])}
+        if cached is not None and wanted <= cached.keys():
             # (the coverage is read afresh: caches written before it was reported lack it)
             return {**cached, **class_coverage(bench.scene), **self._record(metrics, bench)}
         pipeline = bench.load(run.name)
@@ -352,49 +367,54 @@ class PropagationStudy(StudyConfig):
         num_classes = len(train.metadata.get("semantic_classes", []))
         labelled = [index for index in range(len(train)) if train.metadata["property_files"][spec.name][index]]
         test = bench.test_dataset(pipeline)
-        seen = None if setting.pixels is not None else seen_pixels(train, test, labelled)
-        predict = model_predictor(pipeline)
-        renders: Dict[int, Dict[str, torch.Tensor]] = {}
-
-        def rendered(cameras, index: int) -> Dict[str, torch.Tensor]:
-            """`predict` on the test views, each rendered once for every score made of them."""
-            if index not in renders:
-                renders[index] = predict(cameras, index)
-            return renders[index]
-
-        split: Dict[str, Any] = {ON_SEEN: None, ON_UNSEEN: None}
-        if seen is not None:
-            for column, side in ((ON_SEEN, 0), (ON_UNSEEN, 1)):
-                split[column] = score_predictor(rendered, test, [spec], num_classes,
-                                                pixels={index: pair[side] for index, pair in seen.items()}).get(key)
-        if dense:
-            split[CLASS_IOU] = class_ious(rendered, test, num_classes)
-        if cached is not None:  # (a cache from before the split was reported: the rest of it stands)
-            cached.update(split)
-            write_text_atomic(cache, json.dumps(cached, indent=2))
-            return {**cached, **class_coverage(bench.scene), **self._record(metrics, bench)}
         truth = self.true_labels(bench, train)
         unlabelled = [index for index in range(len(train)) if setting.pixels is not None or index not in labelled]
         scored = [unlabelled[int(i)] for i in np.unique(np.linspace(0, len(unlabelled) - 1,
                                                                      min(self.train_views_scored, len(unlabelled)))
                                                          .round())] if unlabelled else []
+        seen = None if setting.pixels is not None else seen_pixels(train, test, labelled)
+        predict = model_predictor(pipeline)
+        on_test, on_train = once_per_view(predict), once_per_view(predict)
+        source_depth = (dataset_depth(train, train.metadata["dataparser_scale"]) if train.depth_files is not None
+                        else rendered_depth(pipeline, train.cameras))
+        points = {
+            views: nearest_labelled_point(train, spec, num_classes, source_depth,
+                                          lambda cameras, index, rendered=rendered: rendered(cameras, index)[DEPTH],
+                                          labelled)
+            for views, rendered in (("test", on_test), ("train", on_train))}
+        added: Dict[str, Any] = {ON_SEEN: None, ON_UNSEEN: None}
+        if seen is not None:
+            for column, side in ((ON_SEEN, 0), (ON_UNSEEN, 1)):
+                added[column] = score_predictor(on_test, test, [spec], num_classes,
+                                                pixels={index: pair[side] for index, pair in seen.items()}).get(key)
+        if dense:
+            added[CLASS_IOU] = class_ious(on_test, test, num_classes)
+        added[NEAREST_POINT] = score_predictor(points["test"], test, [spec], num_classes).get(key)
+        point_on_train = score_predictor(points["train"], truth, [spec], num_classes,
+                                         views=scored).get(key) if scored else None
+        if cached is not None:
+            cached.update(added)
+            if scored:
+                cached.setdefault(ON_TRAIN, {})[NEAREST_POINT] = point_on_train
+            write_text_atomic(cache, json.dumps(cached, indent=2))
+            return {**cached, **class_coverage(bench.scene), **self._record(metrics, bench)}
         scores: Dict[str, Any] = {SSNERF: metrics.get(key)}
-        scores[SSNERF_TRAIN] = score_predictor(predict, truth, [spec], num_classes,
+        scores[SSNERF_TRAIN] = score_predictor(on_train, truth, [spec], num_classes,
                                                views=scored).get(key) if scored else None
-        depth = None if train.depth_files is not None else rendered_depth(pipeline, train.cameras)
         heuristic = HeuristicBaseline(train, [spec], num_classes, train.metadata["dataparser_scale"],
-                                      bench.config.heuristic, depth, sources=labelled)
+                                      bench.config.heuristic, source_depth, sources=labelled)
         nearest = nearest_view_copy(train, [spec], num_classes, bench.config.heuristic.angle_weight, sources=labelled)
         scores[HEURISTIC] = score_predictor(heuristic.predict_view, test, [spec], num_classes).get(key)
         scores[NEAREST] = score_predictor(nearest, test, [spec], num_classes).get(key)
-        scores["baselines on the unlabelled training views"] = {
+        scores[ON_TRAIN] = {
             HEURISTIC: score_predictor(heuristic.predict_view, truth, [spec], num_classes, views=scored).get(key),
             NEAREST: score_predictor(nearest, truth, [spec], num_classes, views=scored).get(key),
+            NEAREST_POINT: point_on_train,
         } if scored else {}
         propagation = json.loads((bench.scene / "transforms.json").read_text()).get("ssnerf_propagation", {})
         scores.update(labelled_frames=len(labelled), training_frames=len(train), train_views_scored=len(scored),
                       labelled_pixel_fraction=propagation.get("labelled_pixel_fraction", 1.0),
-                      seen_by_labelled_frames=seen_share(seen), **split)
+                      seen_by_labelled_frames=seen_share(seen), **added)
         write_text_atomic(cache, json.dumps(scores, indent=2))
         return {**scores, **class_coverage(bench.scene), **self._record(metrics, bench)}
 
@@ -468,7 +488,7 @@ class PropagationStudy(StudyConfig):
         _, data = self.tables(results)
         rows = {row["row"]: row for row in data["propagation"]}
         figure, axis = plt.subplots(figsize=(6.4, 5.0))
-        styles = {SSNERF: "o-", SSNERF_TRAIN: "o:", HEURISTIC: "s--", NEAREST: "^-."}
+        styles = {SSNERF: "o-", SSNERF_TRAIN: "o:", HEURISTIC: "s--", NEAREST: "^-.", NEAREST_POINT: "d:"}
         families = {"frames": ("full", "k labelled frames"), "pixels": ("none", "c pixels per class"),
                     "grown": ("left", "c pixels per class, grown")}
         for family, (marker_fill, description) in families.items():
@@ -494,13 +514,28 @@ class PropagationStudy(StudyConfig):
         return path
 
 
-def model_predictor(pipeline: Pipeline):
-    """A trained pipeline as a predictor of its class property (rendered logits)."""
+def model_predictor(pipeline: Pipeline) -> Predictor:
+    """A trained pipeline as a predictor of its class property (rendered logits), with its rendered z-depth as
+    `DEPTH` (world units, (H, W); what `nearest_labelled_point` lifts a view's pixels with)."""
     spec = class_property()
 
     def predict(cameras, index: int) -> Dict[str, torch.Tensor]:
         with torch.no_grad():
             outputs = pipeline.model.render_camera(cameras[index : index + 1])  # type: ignore[attr-defined]
-        return {spec.name: outputs[spec.prediction_key].cpu()}
+        return {spec.name: outputs[spec.prediction_key].cpu(),
+                DEPTH: rendered_z_depth(outputs)[..., 0].cpu().numpy().astype(np.float64)}
 
     return predict
+
+
+def once_per_view(predict: Predictor) -> Predictor:
+    """`predict` asked once per view index (a predictor of one dataset's views: every score made of them shares
+    its renders)."""
+    views: Dict[int, Dict[str, Any]] = {}
+
+    def predict_once(cameras, index: int) -> Dict[str, Any]:
+        if index not in views:
+            views[index] = predict(cameras, index)
+        return views[index]
+
+    return predict_once
