@@ -493,12 +493,12 @@ class PropagationStudy(StudyConfig):
                     "grown": ("left", "c pixels per class, grown")}
         for family, (marker_fill, description) in families.items():
             chosen = [setting for setting in self.settings() if setting.family == family]
-            for method, style in styles.items():
+            for colour, (method, style) in enumerate(styles.items()):  # a colour per method, a fill per family
                 points = [(rows[s.name]["labelled pixels"], rows[s.name][method]) for s in chosen
                           if rows[s.name]["labelled pixels"] and rows[s.name][method] is not None]
                 if points:
                     label = f"{method}, {description}"
-                    axis.plot(*zip(*sorted(points)), style, fillstyle=marker_fill, label=label)
+                    axis.plot(*zip(*sorted(points)), style, color=f"C{colour}", fillstyle=marker_fill, label=label)
         dense = rows.get(ALL_FRAMES, {}).get(SSNERF)
         if dense is not None:
             axis.axhline(dense, color="grey", linewidth=0.8, label="SS-NeRF, every frame labelled")
