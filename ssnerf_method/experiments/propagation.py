@@ -439,8 +439,8 @@ class PropagationStudy(StudyConfig):
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
         """Rows: the settings; columns: each method's mIoU (average over scenes), the share of the dense model's
         mIoU, the mIoU ceiling of the labels (`class_coverage`) and the dense model's mIoU on the classes they show
-        (`BOUND`), the share of test pixels the labelled frames see and
-        SS-NeRF's mIoU on them and on the rest, and the fraction of training pixels labelled."""
+        (`BOUND`), the share of test pixels the labelled frames see and SS-NeRF's mIoU on them and on the rest, and
+        the fraction of training pixels labelled."""
         rows = []
         for setting in self.settings():
             runs = [scenes.get(setting.name, {}) for scenes in results.values()]
