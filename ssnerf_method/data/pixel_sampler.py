@@ -31,11 +31,9 @@ class LabelledPixelSamplerConfig(PixelSamplerConfig):
     """nerfstudio's pixel sampler, plus a share of labelled pixels for sparsely labelled properties."""
 
     _target: Type = field(default_factory=lambda: LabelledPixelSampler)
-    labelled_rays_per_batch: int = 64
+    labelled_rays_per_batch: int = 256
     """Rays of each batch drawn from the labelled pixels of a sparsely labelled property (shared between such
-    properties; at most half the batch). 64 rather than 256: a few clicks repeated less often in each batch are
-    overfitted less (one click per class per frame: test mIoU 0.645 against 0.584 on the propagation study's two
-    walkthrough scenes; 16 gave 0.619 against 0.673 on seed 0)."""
+    properties; at most half the batch). 64 measured no better (CHANGELOG, 2026-12-07 (later morning))."""
     sparse_label_fraction: float = 0.5
     """A property whose labels cover less than this fraction of the training pixels counts as sparsely labelled."""
     smoothness_patches: int = 0
