@@ -18,8 +18,8 @@ from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
 from ssnerf_method.evaluation.heuristic import (
     HeuristicBaseline,
     HeuristicBaselineConfig,
+    NearestLabelledPoint,
     PinholeView,
-    nearest_labelled_point,
     pose_distance,
 )
 from ssnerf_method.evaluation.scoring import score_predictor
@@ -144,18 +144,18 @@ def test_nearest_labelled_point_gives_each_pixel_the_class_of_the_nearest_labell
     views.items[1]["semantics"] = torch.full((SIZE, SIZE, 1), 255.0)  # a view without labels
     target_depth = np.full((SIZE, SIZE), DEPTH)
     target_depth[:, 0] = np.nan  # a column without depth takes its neighbour's class
-    predict = nearest_labelled_point(views, REGISTRY["semantics"], CLASSES,  # type: ignore[arg-type]
-                                     lambda index: np.full((SIZE, SIZE), DEPTH),
-                                     lambda cameras, index: target_depth, sources=[0, 1])
+    predict = NearestLabelledPoint(views, REGISTRY["semantics"], CLASSES,  # type: ignore[arg-type]
+                                   lambda index: np.full((SIZE, SIZE), DEPTH), sources=[0, 1]).predictor(
+        lambda cameras, index: target_depth)
     columns = torch.arange(SIZE).expand(SIZE, SIZE)
     # the first view: the class boundary (x = 0) between columns 7 and 8; every row alike (nearness in 3D, not on
     # the clicked row)
     assert torch.equal(predict(views.cameras, 0)["semantics"].argmax(-1), torch.where(columns < 8, 1, 3))
     # the second view, 0.5 to the right: x = 0 lies 5 pixels further left
     assert torch.equal(predict(views.cameras, 1)["semantics"].argmax(-1), torch.where(columns < 3, 1, 3))
-    nothing = nearest_labelled_point(views, REGISTRY["semantics"], CLASSES,  # type: ignore[arg-type]
-                                     lambda index: np.full((SIZE, SIZE), DEPTH),
-                                     lambda cameras, index: target_depth, sources=[1])
+    nothing = NearestLabelledPoint(views, REGISTRY["semantics"], CLASSES,  # type: ignore[arg-type]
+                                   lambda index: np.full((SIZE, SIZE), DEPTH), sources=[1]).predictor(
+        lambda cameras, index: target_depth)
     assert (nothing(views.cameras, 0)["semantics"].argmax(-1) == 0).all()  # no labelled pixel: void (0) everywhere
 
 

@@ -162,41 +162,48 @@ def dataset_depth(train: SSNeRFDataset, dataparser_scale: float) -> DepthSource:
     return depth
 
 
-def nearest_labelled_point(
-    train: SSNeRFDataset, spec: PropertySpec, num_classes: int, source_depth: DepthSource,
-    target_depth: Callable[[Cameras, int], Float[np.ndarray, "h w"]], sources: Sequence[int],
-) -> Callable[[Cameras, int], Dict[str, Tensor]]:
-    """A predictor of the class property `spec`: every pixel of a view (lifted to 3D with `target_depth`) takes the
+class NearestLabelledPoint:
+    """The class property `spec` by nearness in space: every pixel of a view (lifted to 3D with its depth) takes the
     class of the nearest labelled pixel of the training views `sources` (lifted with `source_depth`). How far labels
-    carry by nearness in space alone: the baseline for sparse labels (clicks, strokes), of which the Heuristic's
-    splat leaves the test views nearly empty. Pixels without a depth take the nearest pixel's class that has one."""
-    points, classes = [], []
-    for index in sources:
-        label = spec.label(train[index], num_classes)
-        world, pixels = PinholeView.from_cameras(train.cameras, index).unproject(source_depth(index))
-        labelled = spec.kind.valid(label).reshape(-1).numpy()[pixels]
-        points.append(world[labelled])
-        classes.append(label.reshape(-1, label.shape[-1])[torch.from_numpy(pixels[labelled])])
-    tree = cKDTree(np.concatenate(points)) if sum(len(chunk) for chunk in points) else None
-    known = torch.cat(classes) if tree is not None else None
+    carry by nearness alone: the baseline for sparse labels (clicks, strokes), of which the Heuristic's splat leaves
+    the test views nearly empty. The labelled points are lifted once; `predictor` scores any split's views."""
 
-    def predict(cameras: Cameras, index: int) -> Dict[str, Tensor]:
-        target = PinholeView.from_cameras(cameras, index)
-        if tree is None or known is None:
-            label = spec.kind.missing(target.width, target.height, num_classes)
+    def __init__(self, train: SSNeRFDataset, spec: PropertySpec, num_classes: int, source_depth: DepthSource,
+                 sources: Sequence[int]) -> None:
+        self.spec, self.num_classes = spec, num_classes
+        points, classes = [], []
+        for index in sources:
+            label = spec.label(train[index], num_classes)
+            world, pixels = PinholeView.from_cameras(train.cameras, index).unproject(source_depth(index))
+            labelled = spec.kind.valid(label).reshape(-1).numpy()[pixels]
+            points.append(world[labelled])
+            classes.append(label.reshape(-1, label.shape[-1])[torch.from_numpy(pixels[labelled])])
+        self.tree = cKDTree(np.concatenate(points)) if sum(len(chunk) for chunk in points) else None
+        self.known = torch.cat(classes) if self.tree is not None else None
+
+    def predictor(
+        self, target_depth: Callable[[Cameras, int], Float[np.ndarray, "h w"]]
+    ) -> Callable[[Cameras, int], Dict[str, Tensor]]:
+        """A `scoring.Predictor` lifting each view's pixels with `target_depth`. Pixels without a depth take the
+        nearest pixel's class that has one; with no labelled pixel at all, every pixel is unlabelled."""
+        spec, num_classes = self.spec, self.num_classes
+
+        def predict(cameras: Cameras, index: int) -> Dict[str, Tensor]:
+            target = PinholeView.from_cameras(cameras, index)
+            if self.tree is None or self.known is None:
+                label = spec.kind.missing(target.width, target.height, num_classes)
+                return {spec.name: spec.kind.label_as_prediction(label, num_classes)}
+            world, pixels = target.unproject(target_depth(cameras, index))
+            flat = torch.full((target.height * target.width, self.known.shape[-1]), float(SEMANTIC_IGNORE))
+            if len(pixels):
+                flat[torch.from_numpy(pixels)] = self.known[torch.from_numpy(self.tree.query(world)[1])]
+                filled = np.zeros(target.height * target.width, dtype=bool)
+                filled[pixels] = True
+                flat = flat[torch.from_numpy(nearest_filled(filled.reshape(target.height, target.width)).reshape(-1))]
+            label = flat.reshape(target.height, target.width, -1)
             return {spec.name: spec.kind.label_as_prediction(label, num_classes)}
-        depth = target_depth(cameras, index)
-        world, pixels = target.unproject(depth)
-        flat = torch.full((target.height * target.width, known.shape[-1]), float(SEMANTIC_IGNORE))
-        if len(pixels):
-            flat[torch.from_numpy(pixels)] = known[torch.from_numpy(tree.query(world)[1])]
-            filled = np.zeros(target.height * target.width, dtype=bool)
-            filled[pixels] = True
-            flat = flat[torch.from_numpy(nearest_filled(filled.reshape(target.height, target.width)).reshape(-1))]
-        label = flat.reshape(target.height, target.width, -1)
-        return {spec.name: spec.kind.label_as_prediction(label, num_classes)}
 
-    return predict
+        return predict
 
 
 @dataclass

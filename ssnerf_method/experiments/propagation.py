@@ -14,7 +14,7 @@ label (evenly chosen, at most `--train-views-scored` of them; all training views
 pixels are nearly all unlabelled), against the frames' true labels. Beside it, three baselines made from the same
 labels: the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the
 model's rendered depth), the nearest labelled frame copied, and each pixel given the class of the nearest labelled
-pixel in 3D (`nearest_labelled_point`: the labelled pixels lifted as the Heuristic lifts them, the scored view's
+pixel in 3D (`NearestLabelledPoint`: the labelled pixels lifted as the Heuristic lifts them, the scored view's
 pixels with the model's rendered depth), which tells what the field's propagation adds to nearness alone. Each row
 also gives the highest test mIoU any method could reach from its labels (`class_coverage`): a class that is in the
 test views but on no labelled pixel scores 0; the mIoU it reaches if SS-NeRF carries those labels as well as every
@@ -51,9 +51,9 @@ from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder
 from ssnerf_method.evaluation.heuristic import (
     HeuristicBaseline,
+    NearestLabelledPoint,
     PinholeView,
     dataset_depth,
-    nearest_labelled_point,
     nearest_view_copy,
 )
 from ssnerf_method.evaluation.scoring import Predictor, score_predictor
@@ -377,11 +377,9 @@ class PropagationStudy(StudyConfig):
         on_test, on_train = once_per_view(predict), once_per_view(predict)
         source_depth = (dataset_depth(train, train.metadata["dataparser_scale"]) if train.depth_files is not None
                         else rendered_depth(pipeline, train.cameras))
-        points = {
-            views: nearest_labelled_point(train, spec, num_classes, source_depth,
-                                          lambda cameras, index, rendered=rendered: rendered(cameras, index)[DEPTH],
-                                          labelled)
-            for views, rendered in (("test", on_test), ("train", on_train))}
+        nearest_point = NearestLabelledPoint(train, spec, num_classes, source_depth, labelled)
+        points = {views: nearest_point.predictor(lambda cameras, index, memo=memo: memo(cameras, index)[DEPTH])
+                  for views, memo in (("test", on_test), ("train", on_train))}
         added: Dict[str, Any] = {ON_SEEN: None, ON_UNSEEN: None}
         if seen is not None:
             for column, side in ((ON_SEEN, 0), (ON_UNSEEN, 1)):
@@ -516,7 +514,7 @@ class PropagationStudy(StudyConfig):
 
 def model_predictor(pipeline: Pipeline) -> Predictor:
     """A trained pipeline as a predictor of its class property (rendered logits), with its rendered z-depth as
-    `DEPTH` (world units, (H, W); what `nearest_labelled_point` lifts a view's pixels with)."""
+    `DEPTH` (world units, (H, W); what `NearestLabelledPoint` lifts a view's pixels with)."""
     spec = class_property()
 
     def predict(cameras, index: int) -> Dict[str, torch.Tensor]:
