@@ -23,6 +23,15 @@ def score_predictor(
 ) -> Dict[str, float]:
     """Split-level metrics (`metrics`) of `predict` on the views of `dataset` (`views`, default every one), for the
     properties it predicts among `specs`; with `pixels`, on each view's labelled pixels that its mask keeps."""
+    return summarize(predictor_statistics(predict, dataset, specs, num_classes, views, pixels), specs)
+
+
+def predictor_statistics(
+    predict: Predictor, dataset: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int,
+    views: Optional[Sequence[int]] = None, pixels: Optional[Mapping[int, Bool[Tensor, "h w"]]] = None,
+) -> Dict[str, Statistics]:
+    """What `score_predictor` summarizes: each predicted property's statistics added up over the views (a class
+    property's confusion matrix, for one)."""
     totals: Dict[str, Statistics] = {}
     for index in range(len(dataset)) if views is None else views:
         predictions = predict(dataset.cameras, index)
@@ -37,4 +46,4 @@ def score_predictor(
                 valid = valid & pixels[index].to(valid.device)
             view = METRICS[spec.metric].statistics(prediction, label, valid, num_classes)
             totals[spec.name] = add_statistics(totals.get(spec.name, {}), view)
-    return summarize(totals, specs)
+    return totals

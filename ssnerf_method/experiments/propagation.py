@@ -56,7 +56,7 @@ from ssnerf_method.evaluation.heuristic import (
     dataset_depth,
     nearest_view_copy,
 )
-from ssnerf_method.evaluation.scoring import Predictor, score_predictor
+from ssnerf_method.evaluation.scoring import Predictor, predictor_statistics, score_predictor
 from ssnerf_method.experiments.benchmark import (
     BenchmarkConfig,
     ModelRun,
@@ -70,7 +70,7 @@ from ssnerf_method.experiments.studies import Results, StudyConfig, single, writ
 from ssnerf_method.experiments.transfer import PATH_KEYS, evenly_spaced
 from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
 from ssnerf_method.labels.segments import SEGMENT_SCALE, grow_in_segments
-from ssnerf_method.metrics import class_iou, confusion_matrix
+from ssnerf_method.metrics import class_iou
 from ssnerf_method.properties import REGISTRY, class_property
 from ssnerf_method.rendering.depth import rendered_z_depth
 
@@ -175,12 +175,7 @@ def class_coverage(scene: Path) -> Dict[str, Any]:
 def class_ious(predict: Predictor, dataset: SSNeRFDataset, num_classes: int) -> Dict[str, float]:
     """`predict`'s IoU per class id (as a string; the classes of `dataset`'s labels) over its views."""
     spec = class_property()
-    confusion = torch.zeros(num_classes, num_classes, dtype=torch.float64)
-    for index in range(len(dataset)):
-        label = spec.label(dataset[index], num_classes)
-        predicted = predict(dataset.cameras, index)[spec.name].argmax(-1).to(label.device)
-        confusion += confusion_matrix(predicted, label[..., 0], spec.kind.valid(label), num_classes).cpu()
-    iou = class_iou(confusion)
+    iou = class_iou(predictor_statistics(predict, dataset, [spec], num_classes)[spec.name]["confusion"])
     return {str(index): float(value) for index, value in enumerate(iou) if not value.isnan()}
 
 
