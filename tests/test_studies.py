@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
+from typing import Any, Dict
 
 import numpy as np
 import pytest
@@ -19,15 +20,23 @@ from ssnerf_method.experiments import benchmark, sparsity
 from ssnerf_method.experiments.augmentation import SETTINGS, AugmentationStudy
 from ssnerf_method.experiments.autolabel import AutoLabelStudy
 from ssnerf_method.experiments.propagation import (
+    ALL_FRAMES,
     BOUND,
     CEILING,
     CLASS_IOU,
+    DRAWS,
+    HEURISTIC,
+    HIGHEST,
+    LOWEST,
     NEAREST_POINT,
     ON_SEEN,
+    ON_TRAIN,
     ON_UNSEEN,
     SEEN,
+    SSNERF,
     PropagationStudy,
     dense_bound,
+    over_draws,
     seen_pixels,
 )
 from ssnerf_method.experiments.report import BASELINE_ROWS
@@ -254,14 +263,25 @@ def test_seen_pixels_split_each_test_view_by_what_the_labelled_frames_see(traine
 
 @pytest.mark.filterwarnings("ignore")
 def test_propagation_click_draws_get_folders_and_runs_of_their_own(trained_scene, tmp_path: Path) -> None:
-    """Another `--seed` draws other clicks into a copy and runs of its own: a second draw into the same output folder
-    never reuses the first draw's labels or models. The frame settings, which no seed changes, are shared."""
+    """Each of `--seeds` draws other clicks into a copy and runs of its own: a second draw into the same output
+    folder never reuses the first draw's labels or models. The frame settings, which no seed changes, are shared,
+    and a study of several seeds plans each pixel setting once per seed and the others once."""
     scene, _ = trained_scene
     benches = {}
     for seed in (0, 1):
-        study = PropagationStudy(quick=True, output=tmp_path, scenes=(scene,), frames=(1,), pixels=(1,), seed=seed)
+        study = PropagationStudy(quick=True, output=tmp_path, scenes=(scene,), frames=(1,), pixels=(1,), seeds=(seed,))
         made = study.benchmarks(study.benchmark_config())
-        benches[seed] = {setting.name: bench for (_, setting), bench in made.items()}
+        assert {key[2] for key in made} == {seed}
+        benches[seed] = {setting.name: bench for (_, setting, _), bench in made.items()}
+    both = PropagationStudy(quick=True, output=tmp_path, scenes=(scene,), frames=(1,), pixels=(1,), seeds=(0, 1))
+    planned = both.benchmarks(both.benchmark_config())
+    assert sorted((setting.name, seed) for _, setting, seed in planned) == sorted([
+        ("1 frame", 0), ("all frames", 0), *((name, seed) for name in ("1 px/class/frame", "1 px/class/frame, grown")
+                                             for seed in (0, 1))])
+    assert {bench.folder for bench in planned.values()} == {
+        bench.folder for draw in benches.values() for bench in draw.values()}  # the same copies and runs, reused
+    with pytest.raises(ValueError, match="--seeds"):
+        PropagationStudy(quick=True, output=tmp_path, scenes=(scene,), seeds=()).benchmarks(both.benchmark_config())
     assert benches[0]["1 frame"].folder == benches[1]["1 frame"].folder
     assert benches[0]["all frames"].scene == benches[1]["all frames"].scene == scene
     for name in ("1 px/class/frame", "1 px/class/frame, grown"):
@@ -279,6 +299,34 @@ def test_propagation_click_draws_get_folders_and_runs_of_their_own(trained_scene
         drawn = [labels(first), labels(second)]
         assert len(drawn[0]) == len(drawn[1]) > 0
         assert any((a != b).any() for a, b in zip(*drawn))  # other clicks
+
+
+def test_click_draws_average_into_one_row_with_their_lowest_and_highest() -> None:
+    """Several draws of a pixel setting: each scene's row is the mean of its draws (every method, on the test and
+    the unlabelled training views) keeping each draw's SS-NeRF; the table's lowest and highest draw are the draws'
+    own averages over the scenes, not the extremes of single scenes."""
+    def draw(ssnerf: float, heuristic: float) -> Dict[str, Any]:
+        return {SSNERF: ssnerf, HEURISTIC: heuristic, ON_TRAIN: {HEURISTIC: heuristic / 2},
+                "labelled_pixel_fraction": 0.001, "labelled_test_class_ids": [1, 2]}
+    one = draw(0.5, 0.1)
+    assert over_draws({0: one}) is one  # a single draw as it is
+    assert over_draws({0: one, 1: {"failed": "boom"}}) == {"failed": "boom"}
+    a = over_draws({0: draw(0.4, 0.1), 1: draw(0.8, 0.3)})
+    assert a[SSNERF] == pytest.approx(0.6) and a[HEURISTIC] == pytest.approx(0.2)
+    assert a[ON_TRAIN][HEURISTIC] == pytest.approx(0.1) and a[DRAWS] == {"0": 0.4, "1": 0.8}
+    b = over_draws({0: draw(0.6, 0.1), 1: draw(0.4, 0.1)})
+    study = PropagationStudy(frames=(), pixels=(1,), grow_scale=0, seeds=(0, 1))
+    dense = {SSNERF: 0.9, CLASS_IOU: {"1": 0.9, "2": 0.9}}
+    text, tables = study.tables({"a": {"1 px/class/frame": a, ALL_FRAMES: dense},
+                                 "b": {"1 px/class/frame": b, ALL_FRAMES: dense}})
+    row = next(row for row in tables["propagation"] if row["row"] == "1 px/class/frame")
+    assert row[SSNERF] == pytest.approx(0.55)
+    assert row[LOWEST] == pytest.approx(0.5) and row[HIGHEST] == pytest.approx(0.6)  # (0.4 + 0.6) / 2, (0.8 + 0.4) / 2
+    assert tables["per_scene"]["a"]["1 px/class/frame"][DRAWS] == {"0": 0.4, "1": 0.8}
+    assert LOWEST in text and "--seeds" in text
+    single_text, _ = PropagationStudy(frames=(), pixels=(1,), grow_scale=0).tables({"a": {
+        "1 px/class/frame": one, ALL_FRAMES: dense}})
+    assert LOWEST not in single_text  # one draw: no draw columns
 
 
 def test_dense_bound_scores_the_classes_no_label_shows_zero_and_averages_over_every_test_class() -> None:

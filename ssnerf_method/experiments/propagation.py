@@ -96,6 +96,10 @@ SEEN = "test pixels a labelled frame sees"
 """Column of `seen_share` (frame settings only)."""
 ON_SEEN, ON_UNSEEN = "SS-NeRF on seen test pixels", "SS-NeRF on unseen test pixels"
 """Columns of SS-NeRF's test mIoU on the pixels of `SEEN` and on the rest (frame settings only)."""
+DRAWS = "draws"
+"""Key of a setting's SS-NeRF test mIoU per click draw (seed, as a string) in its scores, when it has several."""
+LOWEST, HIGHEST = "SS-NeRF, lowest draw", "SS-NeRF, highest draw"
+"""Columns of the lowest and the highest click draw's SS-NeRF test mIoU (average over the scenes; `--seeds`)."""
 
 
 @dataclass(frozen=True)
@@ -281,9 +285,12 @@ class PropagationStudy(StudyConfig):
     grow_scale: float = SEGMENT_SCALE
     """Each c's clicks are also grown over the image segments they fall in, with this segmentation scale (as
     `ssnerf-label --semantics-grow`); 0 leaves the grown rows out."""
-    seed: int = 0
-    """Seed of the random pixels of the pixel settings (a seed other than 0 names their folders and runs `-draw<seed>`,
-    so one output folder can hold several draws)."""
+    seeds: Tuple[int, ...] = (0,)
+    """Seeds of the pixel settings' random pixels, one click draw each. With several, each pixel setting is trained
+    once per draw and its row gives the mean over the draws, beside the study average of the lowest and the highest
+    draw: one 1-click run moves by up to 0.16 mIoU between draws. A seed other than 0 names its folders and runs
+    `-draw<seed>`, so one output folder holds every draw; the frame settings, which no seed changes, are trained
+    once."""
     train_views_scored: int = 12
     """Unlabelled training views scored per model (evenly spaced among them)."""
 
@@ -297,21 +304,30 @@ class PropagationStudy(StudyConfig):
         grown = [Setting(pixels=c, grow=self.grow_scale) for c in pixels] if self.grow_scale > 0 else []
         return [*(Setting(frames=k) for k in frames), Setting(), *(Setting(pixels=c) for c in pixels), *grown]
 
-    def benchmarks(self, config: BenchmarkConfig) -> Dict[Tuple[str, Setting], SceneBenchmark]:
-        """Per (scene, setting): the benchmark of its labelled copy (the scene itself for every frame's labels)."""
+    def draws(self, setting: Setting) -> Tuple[int, ...]:
+        """The click draws (seeds) `setting` is trained with: every seed for a pixel setting, the first for the rest
+        (no seed changes them)."""
+        if not self.seeds:
+            raise ValueError("--seeds: give at least one seed (e.g. --seeds 0 1 2).")
+        return self.seeds if setting.pixels is not None else self.seeds[:1]
+
+    def benchmarks(self, config: BenchmarkConfig) -> Dict[Tuple[str, Setting, int], SceneBenchmark]:
+        """Per (scene, setting, draw): the benchmark of its labelled copy (the scene itself for every frame's
+        labels)."""
         config = BenchmarkConfig(**{**vars(config), "properties": (class_property().name,),
                                     "all_properties_model": False})
         scenes = list(config.scenes) or generated_scenes(config)
         benches = {}
         for scene in scenes:
             for setting in self.settings():
-                if setting == Setting():
-                    benches[(scene.name, setting)] = SceneBenchmark(config, scene, scene.name)
-                    continue
-                root = config.output / "propagation" / setting.folder(scene, self.seed)
-                if not (root / "transforms.json").is_file():
-                    make_propagation_dataset(scene, root, setting, self.seed)
-                benches[(scene.name, setting)] = SceneBenchmark(config, root, root.name)
+                for seed in self.draws(setting):
+                    if setting == Setting():
+                        benches[(scene.name, setting, seed)] = SceneBenchmark(config, scene, scene.name)
+                        continue
+                    root = config.output / "propagation" / setting.folder(scene, seed)
+                    if not (root / "transforms.json").is_file():
+                        make_propagation_dataset(scene, root, setting, seed)
+                    benches[(scene.name, setting, seed)] = SceneBenchmark(config, root, root.name)
         return benches
 
     @staticmethod
@@ -329,13 +345,19 @@ class PropagationStudy(StudyConfig):
         config.output.mkdir(parents=True, exist_ok=True)
         benches = self.benchmarks(config)
         launch(config, [bench.job(self.run_of()) for bench in benches.values()])
+        drawn: Dict[Tuple[str, Setting], Dict[int, Dict[str, Any]]] = {}
+        for (scene, setting, seed), bench in benches.items():
+            CONSOLE.print(f"[bold]propagation study, {scene}: {setting.name}"
+                          + (f" (draw {seed})" if len(self.draws(setting)) > 1 else ""))
+            drawn.setdefault((scene, setting), {})[seed] = self.score(bench, setting)
         results: Results = {}
         details: Dict[str, Any] = {}
-        for (scene, setting), bench in benches.items():
-            CONSOLE.print(f"[bold]propagation study, {scene}: {setting.name}")
-            results.setdefault(scene, {})[setting.name] = self.score(bench, setting)
-            details.setdefault(scene, {})[setting.name] = {
-                key: results[scene][setting.name].get(key) for key in ("train_seconds", "seed", "config", "dataset")}
+        for (scene, setting), scores in drawn.items():
+            results.setdefault(scene, {})[setting.name] = over_draws(scores)
+            records = {str(seed): {key: score.get(key) for key in ("train_seconds", "seed", "config", "dataset")}
+                       for seed, score in scores.items()}
+            details.setdefault(scene, {})[setting.name] = (next(iter(records.values())) if len(records) == 1
+                                                           else records)
         self.figure(results, config.output / "figure_propagation.png")
         write_study_report(self, results, details, time.time() - start)
         return results
@@ -449,12 +471,23 @@ class PropagationStudy(StudyConfig):
             row[ON_SEEN] = average([run.get(ON_SEEN) for run in runs])
             row[ON_UNSEEN] = average([run.get(ON_UNSEEN) for run in runs])
             row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
+            # each draw's study average (the draw of that seed on every scene), its lowest and its highest
+            by_draw = [average([run.get(DRAWS, {}).get(str(seed)) for run in runs]) for seed in self.draws(setting)]
+            by_draw = [value for value in by_draw if value is not None]
+            several = len(self.draws(setting)) > 1 and by_draw
+            row[LOWEST], row[HIGHEST] = (min(by_draw), max(by_draw)) if several else (None, None)
             rows.append(row)
         shared = [*METHODS, "SS-NeRF / all frames", CEILING, BOUND, SEEN, ON_SEEN, ON_UNSEEN]
+        shared += [LOWEST, HIGHEST] if len(self.seeds) > 1 else []
         titles, columns = [*shared, "labelled pixels (fraction)"], [*shared, "labelled pixels"]
         per_scene = {scene: {name: {**{column: runs[name].get(column) for column in (*METHODS, ON_SEEN, ON_UNSEEN)},
-                                    BOUND: dense_bound(runs[name], runs.get(ALL_FRAMES, {}))}
+                                    BOUND: dense_bound(runs[name], runs.get(ALL_FRAMES, {})),
+                                    **({DRAWS: runs[name][DRAWS]} if DRAWS in runs[name] else {})}
                              for name in runs} for scene, runs in results.items()}
+        draws_text = (f" {LOWEST} and {HIGHEST}: with several click draws (`--seeds`), a pixel row's SS-NeRF is the "
+                      "mean over the draws; these are the lowest and the highest of the draws' own averages over the "
+                      "scenes (a draw: one seed's clicks on every scene), and each scene's draws are in the JSON "
+                      f"(`{DRAWS}`)." if len(self.seeds) > 1 else "")
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
@@ -465,7 +498,7 @@ class PropagationStudy(StudyConfig):
                 f"{SEEN}: the share of test pixels whose surface some labelled frame sees (with the scene's depth "
                 f"maps; frame settings only); {ON_SEEN} and {ON_UNSEEN}: SS-NeRF's mIoU on those test pixels and on "
                 "the rest (with a depth) apart, each over the classes it shows. Labelled pixels: those labelled "
-                "by hand (a grown row counts its clicks, not the pixels they grew to).\n\n"
+                "by hand (a grown row counts its clicks, not the pixels they grew to)." + draws_text + "\n\n"
                 "Figure: `figure_propagation.png`.")
         return text, {"propagation": rows, "per_scene": per_scene}
 
@@ -505,6 +538,26 @@ class PropagationStudy(StudyConfig):
         figure.savefig(path, dpi=150)
         plt.close(figure)
         return path
+
+
+def over_draws(scores: Dict[int, Dict[str, Any]]) -> Dict[str, Any]:
+    """One setting's scores on one scene from its click draws (seed: scores): a single draw's as they are; with
+    several, the first draw's with the numbers that differ between draws (every method's mIoU, on the test and the
+    unlabelled training views, and the labelled fraction) replaced by their mean, and each draw's SS-NeRF test mIoU
+    under `DRAWS`. A failed draw fails the setting."""
+    if len(scores) == 1:
+        return next(iter(scores.values()))
+    failed = [score for score in scores.values() if "failed" in score]
+    if failed:
+        return failed[0]
+    runs = list(scores.values())
+    merged = dict(runs[0])
+    for key in (*METHODS, "labelled_pixel_fraction"):
+        merged[key] = average([run.get(key) for run in runs])
+    merged[ON_TRAIN] = {method: average([run.get(ON_TRAIN, {}).get(method) for run in runs])
+                        for method in runs[0].get(ON_TRAIN, {})}
+    merged[DRAWS] = {str(seed): score.get(SSNERF) for seed, score in scores.items()}
+    return merged
 
 
 def model_predictor(pipeline: Pipeline) -> Predictor:
