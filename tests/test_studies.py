@@ -24,6 +24,7 @@ from ssnerf_method.experiments.propagation import (
     BOUND,
     CEILING,
     CLASS_IOU,
+    DRAW,
     DRAWS,
     HEURISTIC,
     HIGHEST,
@@ -322,7 +323,9 @@ def test_click_draws_average_into_one_row_with_their_lowest_and_highest() -> Non
     row = next(row for row in tables["propagation"] if row["row"] == "1 px/class/frame")
     assert row[SSNERF] == pytest.approx(0.55)
     assert row[LOWEST] == pytest.approx(0.5) and row[HIGHEST] == pytest.approx(0.6)  # (0.4 + 0.6) / 2, (0.8 + 0.4) / 2
-    assert tables["per_scene"]["a"]["1 px/class/frame"][DRAWS] == {"0": 0.4, "1": 0.8}
+    drawn = tables["per_scene"]["a"]["1 px/class/frame"]
+    assert (drawn[DRAW.format(0)], drawn[DRAW.format(1)]) == (0.4, 0.8)
+    assert not any(isinstance(value, dict) for value in drawn.values())  # a scene's table has scalar cells
     assert LOWEST in text and "--seeds" in text
     single_text, _ = PropagationStudy(frames=(), pixels=(1,), grow_scale=0).tables({"a": {
         "1 px/class/frame": one, ALL_FRAMES: dense}})

@@ -98,6 +98,8 @@ ON_SEEN, ON_UNSEEN = "SS-NeRF on seen test pixels", "SS-NeRF on unseen test pixe
 """Columns of SS-NeRF's test mIoU on the pixels of `SEEN` and on the rest (frame settings only)."""
 DRAWS = "draws"
 """Key of a setting's SS-NeRF test mIoU per click draw (seed, as a string) in its scores, when it has several."""
+DRAW = "SS-NeRF, draw {}"
+"""Column of one click draw's SS-NeRF test mIoU in the per-scene tables (the seed in the braces)."""
 LOWEST, HIGHEST = "SS-NeRF, lowest draw", "SS-NeRF, highest draw"
 """Columns of the lowest and the highest click draw's SS-NeRF test mIoU (average over the scenes; `--seeds`)."""
 
@@ -482,12 +484,11 @@ class PropagationStudy(StudyConfig):
         titles, columns = [*shared, "labelled pixels (fraction)"], [*shared, "labelled pixels"]
         per_scene = {scene: {name: {**{column: runs[name].get(column) for column in (*METHODS, ON_SEEN, ON_UNSEEN)},
                                     BOUND: dense_bound(runs[name], runs.get(ALL_FRAMES, {})),
-                                    **({DRAWS: runs[name][DRAWS]} if DRAWS in runs[name] else {})}
+                                    **{DRAW.format(seed): value for seed, value in runs[name].get(DRAWS, {}).items()}}
                              for name in runs} for scene, runs in results.items()}
         draws_text = (f" {LOWEST} and {HIGHEST}: with several click draws (`--seeds`), a pixel row's SS-NeRF is the "
                       "mean over the draws; these are the lowest and the highest of the draws' own averages over the "
-                      "scenes (a draw: one seed's clicks on every scene), and each scene's draws are in the JSON "
-                      f"(`{DRAWS}`)." if len(self.seeds) > 1 else "")
+                      "scenes (a draw: one seed's clicks on every scene); each scene's draws are in its own table." if len(self.seeds) > 1 else "")
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
