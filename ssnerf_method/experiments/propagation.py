@@ -488,7 +488,8 @@ class PropagationStudy(StudyConfig):
                              for name in runs} for scene, runs in results.items()}
         draws_text = (f" {LOWEST} and {HIGHEST}: with several click draws (`--seeds`), a pixel row's SS-NeRF is the "
                       "mean over the draws; these are the lowest and the highest of the draws' own averages over the "
-                      "scenes (a draw: one seed's clicks on every scene); each scene's draws are in its own table." if len(self.seeds) > 1 else "")
+                      "scenes (a draw: one seed's clicks on every scene); each scene's draws are in its own table."
+                      if len(self.seeds) > 1 else "")
         text = ("mIoU ↑ (test views unless named), average over the scenes\n\n" + markdown(rows, columns, titles, 4)
                 + f"\n\n{CEILING}: the share of the test views' classes that some labelled pixel shows, the highest "
                 "mIoU any method can reach from these labels (a class no label shows scores 0). "
