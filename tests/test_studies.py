@@ -345,11 +345,21 @@ def test_quick_propagation_trains_on_fewer_labels_and_reports_their_ceiling(trai
     scene, _ = trained_scene
     before = (scene / "transforms.json").read_bytes()
     output = tmp_path / "propagation"
-    study = PropagationStudy(quick=True, output=output, scenes=(scene,), frames=(1,), pixels=(1,))
+    study = PropagationStudy(quick=True, output=output, scenes=(scene,), frames=(1,), pixels=(1,), seeds=(0, 1))
     results = study.run()
     assert (scene / "transforms.json").read_bytes() == before  # the scene itself is not touched
     assert set(results[scene.name]) == {"1 frame", "all frames", "1 px/class/frame", "1 px/class/frame, grown"}
     assert_planned(study, output, 0.0)
+    # two click draws: each pixel setting trained twice, its row their mean, a run record per trained model
+    report = json.loads((output / "study_propagation.json").read_text())
+    assert set(report["runs"][scene.name]) == {"1 frame", "all frames", *(
+        f"{name}, draw {seed}" for name in ("1 px/class/frame", "1 px/class/frame, grown") for seed in (0, 1))}
+    assert all(run["train_seconds"] > 0 for run in report["runs"][scene.name].values())
+    for name in ("1 px/class/frame", "1 px/class/frame, grown"):
+        drawn = results[scene.name][name][DRAWS]
+        assert set(drawn) == {"0", "1"} and results[scene.name][name][SSNERF] == pytest.approx(np.mean(list(
+            drawn.values())))
+    assert DRAWS not in results[scene.name]["1 frame"]
 
     copy = json.loads((output / "propagation" / f"{scene.name}-1frames" / "transforms.json").read_text())
     chosen = {str(Path(name).resolve()) for name in copy["ssnerf_propagation"]["labelled_frames"]}

@@ -356,10 +356,10 @@ class PropagationStudy(StudyConfig):
         details: Dict[str, Any] = {}
         for (scene, setting), scores in drawn.items():
             results.setdefault(scene, {})[setting.name] = over_draws(scores)
-            records = {str(seed): {key: score.get(key) for key in ("train_seconds", "seed", "config", "dataset")}
-                       for seed, score in scores.items()}
-            details.setdefault(scene, {})[setting.name] = (next(iter(records.values())) if len(records) == 1
-                                                           else records)
+            for seed, score in scores.items():  # a run record per trained model, each draw's its own
+                run = setting.name if len(scores) == 1 else f"{setting.name}, draw {seed}"
+                details.setdefault(scene, {})[run] = {
+                    key: score.get(key) for key in ("train_seconds", "seed", "config", "dataset")}
         self.figure(results, config.output / "figure_propagation.png")
         write_study_report(self, results, details, time.time() - start)
         return results
