@@ -473,11 +473,11 @@ class PropagationStudy(StudyConfig):
             row[ON_SEEN] = average([run.get(ON_SEEN) for run in runs])
             row[ON_UNSEEN] = average([run.get(ON_UNSEEN) for run in runs])
             row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
-            # each draw's study average (the draw of that seed on every scene), its lowest and its highest
+            # each draw's study average (the draw of that seed on every scene), its lowest and its highest; a
+            # setting of one draw has no `DRAWS` (`over_draws`), so none
             by_draw = [average([run.get(DRAWS, {}).get(str(seed)) for run in runs]) for seed in self.draws(setting)]
             by_draw = [value for value in by_draw if value is not None]
-            several = len(self.draws(setting)) > 1 and by_draw
-            row[LOWEST], row[HIGHEST] = (min(by_draw), max(by_draw)) if several else (None, None)
+            row[LOWEST], row[HIGHEST] = (min(by_draw), max(by_draw)) if by_draw else (None, None)
             rows.append(row)
         shared = [*METHODS, "SS-NeRF / all frames", CEILING, BOUND, SEEN, ON_SEEN, ON_UNSEEN]
         shared += [LOWEST, HIGHEST] if len(self.seeds) > 1 else []
