@@ -17,10 +17,10 @@ elif [ -d .gpucarry/wheels ] && python3 -c "import torch" 2>/dev/null && [[ " $*
 elif command -v nvidia-smi >/dev/null 2>&1 && [[ " $* " != *" --dry-run "* ]]; then
   make env >&2 && PYTHON=.venv/bin/python
 else
-  echo '{"dry_run": true, "reason": "no environment and no GPU: run make env first", "plan": ["make env", "python -m ssnerf_method.scripts.gpu_check"]}'
+  echo '{"dry_run": true, "reason": "no environment and no GPU: run make env first", "plan": ["make env", "python scripts/gpu_check.py"]}'
   exit 0
 fi
 if [[ " $* " != *" --dry-run "* ]] && ! "$PYTHON" -c "import pytest" 2>/dev/null; then
   "$PYTHON" -m pip install -q -e '.[test]' >&2                # pytest, for the CUDA-only tests
 fi
-exec "$PYTHON" -m ssnerf_method.scripts.gpu_check "$@"
+exec "$PYTHON" scripts/gpu_check.py "$@"

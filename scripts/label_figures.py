@@ -33,7 +33,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from ssnerf_method.data.strokes import STROKES_FILE, StrokeStore  # noqa: E402
 from ssnerf_method.engine.trainer import train_in_process  # noqa: E402
 from ssnerf_method.experiments.transfer import evenly_spaced  # noqa: E402
-from ssnerf_method.labels.encoding import SEMANTIC_IGNORE  # noqa: E402
+from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE  # noqa: E402
 from ssnerf_method.method_configs import ssnerf_lite_config  # noqa: E402
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene  # noqa: E402
 from ssnerf_method.viewer.label_panel import BOX  # noqa: E402

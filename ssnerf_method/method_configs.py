@@ -21,6 +21,7 @@ from nerfstudio.plugins.types import MethodSpecification
 from ssnerf_method.data.datamanager import SSNeRFDataManagerConfig
 from ssnerf_method.engine.optimizers import FusedAdamOptimizerConfig
 from ssnerf_method.engine.trainer import SSNeRFTrainerConfig
+from ssnerf_method.model.loss_balancing import LossBalancerConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 from ssnerf_method.pipelines.ssnerf_pipeline import SSNeRFPipelineConfig
 
@@ -92,7 +93,7 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             # updates and RGB loses ~4-8 dB at 1000 steps. Each is capped at a tenth of RGB's, and each property has
             # its own decoder MLP on a 32-number feature (nerfacto's 15 is sized for RGB alone): measured best on the
             # default scenes (docs/method.md, "Multi-task balancing").
-            balance_ratio=0.1,
+            balancing=LossBalancerConfig(ratio=0.1),
             decoder_sharing="property",
             grid_feature_dim=32,
             # Sparse semantic labels (a few pixels per frame, viewer strokes) spread through a coarse grid that only

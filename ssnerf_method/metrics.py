@@ -20,7 +20,7 @@ from jaxtyping import Bool, Float
 from torch import Tensor
 from torchmetrics.functional import structural_similarity_index_measure
 
-from ssnerf_method.labels.encoding import decode_normals
+from ssnerf_method.label_makers.encoding import decode_normals
 from ssnerf_method.properties import PropertySpec
 
 Statistics = Dict[str, Tensor]

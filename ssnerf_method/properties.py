@@ -24,8 +24,8 @@ from nerfstudio.model_components.renderers import NormalsRenderer, RGBRenderer, 
 from nerfstudio.utils import colormaps
 
 from ssnerf_method.errors import UserError
-from ssnerf_method.labels.encoding import SEMANTIC_IGNORE, decode_normals, encode_normals
-from ssnerf_method.labels.makers import (
+from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE, decode_normals, encode_normals
+from ssnerf_method.label_makers.makers import (
     CannyEdges,
     KeypointMap,
     LabelMaker,

@@ -14,16 +14,16 @@ import pytest
 from PIL import Image
 from pycocotools import mask as coco_mask
 
+from ssnerf_method.cli.check import CheckConfig
+from ssnerf_method.cli.check import main as check_main
+from ssnerf_method.cli.label import main as label_main
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labelling.label_dataset import LABELLED, LabelDatasetConfig, label_dataset
-from ssnerf_method.labels.makers import LabelOptions
+from ssnerf_method.label_makers.makers import LabelOptions
+from ssnerf_method.label_tool.label_dataset import LABELLED, LabelDatasetConfig, label_dataset
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.rendering.palette import default_palette
-from ssnerf_method.scripts.check import CheckConfig
-from ssnerf_method.scripts.check import main as check_main
-from ssnerf_method.scripts.label import main as label_main
 
 from conftest import CLASSES, HEIGHT, WIDTH, ssnerf_label_refuses, write_tiny_dataset
 

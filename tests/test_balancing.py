@@ -9,7 +9,7 @@ from test_properties import make_bundle
 
 from nerfstudio.data.scene_box import SceneBox
 
-from ssnerf_method.model.loss_balancing import LossBalancer
+from ssnerf_method.model.loss_balancing import LossBalancer, LossBalancerConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 
 
@@ -40,11 +40,11 @@ def test_balancer_smooths_and_leaves_properties_alone_without_rgb() -> None:
     assert float(without_rgb.multiplier("p")) == 1.0
 
 
-def small_model(balance_ratio=None):
+def small_model(ratio=None):
     config = SSNeRFModelConfig(
         properties=("semantics", "edges"), encoder="hashgrid", grid_levels=2, grid_max_res=16,
         grid_log2_hashmap_size=8, grid_hidden_dim=16, grid_feature_dim=8, decoder_width=16, num_coarse_samples=4,
-        num_fine_samples=4, balance_ratio=balance_ratio, balance_every=3,
+        num_fine_samples=4, balancing=LossBalancerConfig(ratio, every=3),
     )
     return config.setup(scene_box=SceneBox(aabb=torch.tensor([[-1.0] * 3, [1.0] * 3])), num_train_data=1,
                         metadata={"semantic_classes": ["a", "b", "c"], "available_properties": ("semantics", "edges")})
@@ -80,7 +80,7 @@ def test_model_scales_every_level_of_a_property_loss_by_its_multiplier() -> None
     assert "edges_loss_multiplier" in balanced.get_metrics_dict(outputs, batch)
     for callback in callbacks:
         callback.run_callback_at_location(1, callback.where_to_run[0])
-    assert not balanced.balance_now  # step 1 is not a multiple of balance_every = 3
+    assert not balanced.balance_now  # step 1 is not a multiple of balancing.every = 3
 
 
 def small_field(names, sharing: str, **options):
@@ -116,52 +116,3 @@ def test_property_decoders_share_nothing_between_properties() -> None:
         assert reached == shared
 
 
-def test_rgb_apart_gives_rgb_its_own_mlp_and_one_per_branch_to_the_others() -> None:
-    """`decoder_sharing=rgb-apart`: on F_dec^v, RGB has an MLP of its own and the other view-dependent properties share
-    one (RGB's output reaches neither's weights in the other); F_dec^nv's properties share one MLP; a model with one
-    property has as many decoder parameters as with `property`, and `property` keeps its parameter names."""
-    from test_properties import NUM_CLASSES, make_samples
-
-    from ssnerf_method.fields.ssnerf_field import GroupedDecoders
-    from ssnerf_method.properties import resolve_properties
-
-    def decoder_parameters(module):
-        return {key: value.shape for key, value in module.state_dict().items() if key.startswith("decoders.")}
-
-    names = ["semantics", "normals", "shading", "keypoints", "edges"]
-    specs = {spec.name: spec for spec in resolve_properties(names)}
-    apart, per_property = small_field(names, "rgb-apart"), small_field(names, "property")
-    for branch, decoders in apart.decoders.items():
-        assert isinstance(decoders, GroupedDecoders)
-        groups = {key: set(decoder.names) for key, decoder in decoders.decoders.items()}
-        others = {name for name, spec in specs.items() if spec.branch == branch and name != "rgb"}
-        expected = {"properties": others, **({"rgb": {"rgb"}} if specs["rgb"].branch == branch else {})}
-        assert groups == expected
-        assert sorted(decoders.names) == sorted(set().union(*groups.values()))  # as BranchDecoder.names
-    assert len(list(apart.parameters())) < len(list(per_property.parameters()))
-
-    outputs = apart(make_samples(make_bundle()))
-    assert set(outputs) >= set(names) and outputs["semantics"].shape[-1] == NUM_CLASSES
-    v = apart.decoders["v"].decoders
-    rgb_gradients = torch.autograd.grad(outputs["rgb"].sum(), list(v["properties"].parameters()), allow_unused=True)
-    assert all(g is None or g.abs().sum() == 0 for g in rgb_gradients)
-    view_dependent = v["properties"].names[0]
-    shared = torch.autograd.grad(outputs[view_dependent].sum(), list(v["properties"].parameters()), allow_unused=True)
-    assert any(g is not None and g.abs().sum() > 0 for g in shared)
-
-    single_apart, single_property = small_field(["edges"], "rgb-apart"), small_field(["edges"], "property")
-    assert sorted(decoder_parameters(single_apart).values()) == sorted(decoder_parameters(single_property).values())
-    prefixes = {".".join(key.split(".")[:4]) for key in decoder_parameters(single_property)}
-    assert prefixes == {"decoders.v.decoders.rgb", "decoders.v.decoders.edges"}  # the names checkpoints carry
-
-
-@pytest.mark.parametrize("sharing", ["property", "rgb-apart"])
-def test_property_decoder_width_narrows_the_property_mlps_and_keeps_rgbs(sharing: str) -> None:
-    """`property_decoder_width`: every MLP that decodes properties apart from RGB has that width; RGB's keeps
-    `decoder_width`, so an RGB-only model is unchanged by it."""
-    field = small_field(["semantics", "normals", "edges"], sharing, decoder_width=24, property_decoder_width=8)
-    widths = {(branch, key): decoder.heads.in_features
-              for branch, grouped in field.decoders.items() for key, decoder in grouped.decoders.items()}
-    assert widths[("v", "rgb")] == 24
-    assert {width for where, width in widths.items() if where != ("v", "rgb")} == {8}
-    assert len(widths) == (4 if sharing == "property" else 3)

@@ -1,5 +1,5 @@
-"""The compiled training step (`compile_fields`): the same outputs and gradients as eager, an eager fallback, when the
-model compiles, unchanged checkpoints and configs; and the step profiler (`scripts/profile_step.py`).
+"""The compiled training step (the model's `compile`): the same outputs and gradients as eager, an eager fallback,
+when the model compiles, unchanged checkpoints.
 
 The two tests that compile share one tiny model (a 2-level hash grid, 16-wide decoders, one proposal network), so
 the suite pays for one small compile of the field and one of the proposal network."""
@@ -7,37 +7,19 @@ the suite pays for one small compile of the field and one of the proposal networ
 from __future__ import annotations
 
 import copy
-import json
-import os
-import subprocess
-from pathlib import Path
 from types import SimpleNamespace
 from typing import Dict, List
 
 import pytest
 import torch
-import yaml
 
 from nerfstudio.cameras.rays import Frustums, RaySamples
 from nerfstudio.engine.callbacks import TrainingCallbackAttributes
 from nerfstudio.field_components.field_heads import FieldHeadNames
 
-from ssnerf_method.fields.compiled import CompiledOrEager, native_bfloat16
-from ssnerf_method.method_configs import ssnerf_lite_config
-from ssnerf_method.model import ssnerf_model
-from ssnerf_method.model.ssnerf_model import SSNeRFModel, SSNeRFModelConfig
-from ssnerf_method.properties import OPTIONAL_PROPERTIES
-from ssnerf_method.scripts import profile_step
-from ssnerf_method.scripts.benchmark_throughput import (
-    BenchmarkConfig,
-    CaseResult,
-    TrainingStep,
-    _ssnerf_case,
-    reference_command,
-    reference_env,
-    reference_result,
-    reference_worktree,
-)
+from ssnerf_method.fields import compiled as compiled_module
+from ssnerf_method.fields.compiled import CompileConfig, CompiledOrEager, native_bfloat16
+from ssnerf_method.model.ssnerf_model import SSNeRFModel
 
 from test_rendering import tiny_model
 
@@ -92,13 +74,13 @@ def outputs_and_gradients(model: SSNeRFModel, evaluate) -> tuple[Dict[str, torch
 def eager_and_compiled() -> List[SSNeRFModel]:
     """The same tiny lite model three times: eager; compiled as a long run compiles it, in float32; compiled with
     bfloat16 matmuls, as on a CPU that has them (one compile per module and precision)."""
-    eager = lite_model(bfloat16_matmuls=False)
+    eager = lite_model(compile=CompileConfig(bfloat16_matmuls=False))
     compiled = copy.deepcopy(eager)
     compiled.get_training_callbacks(run_for(1000))
     mixed = copy.deepcopy(eager)
-    mixed.config.bfloat16_matmuls = True
+    mixed.config.compile.bfloat16_matmuls = True
     with pytest.MonkeyPatch.context() as patch:
-        patch.setattr(ssnerf_model, "native_bfloat16", lambda: True)
+        patch.setattr(compiled_module, "native_bfloat16", lambda: True)
         mixed.get_training_callbacks(run_for(1000))
     return [eager, compiled, mixed]
 
@@ -187,10 +169,10 @@ def test_native_bfloat16_reads_the_cpu_probes(monkeypatch, amx, avx512_bf16, nat
 def test_bfloat16_matmuls_only_where_the_cpu_has_them(monkeypatch, native: bool, asked: bool,
                                                       in_bfloat16: bool) -> None:
     compiled_with = []
-    monkeypatch.setattr(ssnerf_model, "native_bfloat16", lambda: native)
+    monkeypatch.setattr(compiled_module, "native_bfloat16", lambda: native)
     monkeypatch.setattr(CompiledOrEager, "__init__", lambda self, function, label, bfloat16_matmuls=False:
                         compiled_with.append(bfloat16_matmuls))
-    lite_model(bfloat16_matmuls=asked).get_training_callbacks(run_for(1000))
+    lite_model(compile=CompileConfig(bfloat16_matmuls=asked)).get_training_callbacks(run_for(1000))
     assert compiled_with == [in_bfloat16] * 2  # the field and the proposal network
 
 
@@ -207,16 +189,16 @@ def test_evaluation_never_calls_the_compiled_field() -> None:
         field(samples())
 
 
-@pytest.mark.parametrize("attributes, compile_fields, compiles", [
+@pytest.mark.parametrize("attributes, enabled, compiles", [
     (run_for(1000), True, True),
-    (run_for(299), True, False),  # shorter than compile_min_steps (300)
+    (run_for(299), True, False),  # shorter than compile.min_steps (300)
     (run_for(1000), False, False),
     (TrainingCallbackAttributes(optimizers=None, grad_scaler=None, pipeline=None, trainer=None), True, False),
     (None, True, False),
 ])
-def test_only_long_cpu_runs_compile(attributes, compile_fields: bool, compiles: bool) -> None:
-    model = lite_model(compile_fields=compile_fields)
-    plain = lite_model(compile_fields=False)
+def test_only_long_cpu_runs_compile(attributes, enabled: bool, compiles: bool) -> None:
+    model = lite_model(compile=CompileConfig(enabled=enabled))
+    plain = lite_model(compile=CompileConfig(enabled=False))
     model.get_training_callbacks(attributes)
     field = model.sampling.field_module
     assert (getattr(field, "compiled_evaluate", None) is not None) == compiles
@@ -243,97 +225,3 @@ def test_a_failed_compile_runs_eagerly_with_one_line(monkeypatch, capsys) -> Non
     lines = [line for line in capsys.readouterr().out.splitlines() if line.strip()]
     assert len(lines) == 1 and "a test function" in lines[0] and "C++ compile error" in lines[0]
     assert "eager" in lines[0]
-
-
-def test_configs_saved_before_compile_fields_existed_load_with_the_defaults() -> None:
-    text = yaml.dump(SSNeRFModelConfig(properties=("semantics",)))
-    new_fields = ("compile_fields:", "compile_min_steps:", "bfloat16_matmuls:")
-    old = "\n".join(line for line in text.splitlines() if not line.startswith(new_fields))
-    assert old != text
-    config = yaml.load(old, Loader=yaml.Loader)
-    assert isinstance(config, SSNeRFModelConfig) and config.properties == ("semantics",)
-    assert config.compile_fields is True and config.compile_min_steps == 300 and config.bfloat16_matmuls is True
-
-
-# --------------------------------------------------------------------------------------------------- profiler
-
-
-@pytest.mark.parametrize("name, stage, expected", [
-    ("aten::index_select", "field", "hash-grid gather / scatter"),
-    ("aten::scatter_add_", "backward", "hash-grid gather / scatter"),
-    ("aten::addmm", "decoders", "matmul (MLPs)"),
-    ("aten::sqrt", "optimizer", "optimizer (Adam)"),
-    ("aten::sqrt", "field", profile_step.ELEMENTWISE),
-    ("aten::bitwise_xor", "hash_grid", "hash arithmetic (xor, floor, ceil, mod)"),
-    ("## Call CompiledFxGraph abc ##", "field", "compiled"),
-    ("aten::searchsorted", "sampling", "sampling (sort, search, gather)"),
-])
-def test_profile_categories(name: str, stage: str, expected: str) -> None:
-    assert profile_step.category(name, stage) == expected
-
-
-def test_profile_step_reports_stages_kinds_and_arithmetic(tiny_dataset: Path, tmp_path: Path) -> None:
-    report = profile_step.run(profile_step.ProfileStepConfig(
-        data=tiny_dataset, steps=2, warmup=1, threads=1, rays=64, compile=False, peak_size=256, top=5,
-        output_dir=tmp_path / "profile",
-    ))
-    stages = report["profile"]["stages_ms"]
-    for stage in ("data", "proposal_networks", "sampling", "hash_grid", "encoder", "decoders", "losses", "backward",
-                  "optimizer"):
-        assert stages[stage] > 0, stage
-    assert sum(stages.values()) <= report["profile"]["wall_ms"] * 1.01
-    kinds = report["profile"]["categories_ms"]
-    assert kinds["matmul (MLPs)"]["forward"] > 0 and kinds["matmul (MLPs)"]["backward"] > 0
-    assert kinds["hash-grid gather / scatter"]["backward"] > 0  # the table's gradient
-    arithmetic = report["arithmetic"]
-    assert arithmetic["gflop"] > 0 and arithmetic["peak_gflops"] > 0
-    assert 0 < arithmetic["achieved_fraction"] < 1
-    text = (tmp_path / "profile" / "step_profile.md").read_text()
-    assert "field decoders (forward)" in text and "GFLOP" in text and "eager" in text
-    assert json.loads((tmp_path / "profile" / "step_profile.json").read_text())["compiled"] is False
-
-
-def test_the_benchmark_step_compiles_as_a_long_run_does(tiny_dataset: Path) -> None:
-    """`TrainingStep` hands the model its config's run length, so the benchmark times what a real run trains."""
-    case = _ssnerf_case(ssnerf_lite_config, tiny_dataset, 32, OPTIONAL_PROPERTIES)
-    assert case.max_num_iterations >= case.pipeline.model.compile_min_steps  # type: ignore[attr-defined]
-    field = TrainingStep(case).pipeline.model.sampling.field_module
-    assert getattr(field, "compiled_evaluate", None) is not None
-    eager = TrainingStep(_ssnerf_case(ssnerf_lite_config, tiny_dataset, 32, OPTIONAL_PROPERTIES, compile_fields=False))
-    assert getattr(eager.pipeline.model.sampling.field_module, "compiled_evaluate", None) is None
-
-
-def test_a_compiled_runs_time_counts_inductors_start_once() -> None:
-    """`benchmark_throughput`'s run estimate: inductor's start in a fresh process, the warm-up, then the timed rate."""
-    eager = CaseResult("a", "eager", "ssnerf-lite", [], 1024, steps=10, seconds=4.0, warmup_steps=12,
-                       warmup_seconds=6.0)
-    compiled = CaseResult("g", "compiled", "ssnerf-lite", [], 1024, steps=10, seconds=2.0, warmup_steps=12,
-                          warmup_seconds=30.0, startup_seconds=12.0)
-    assert eager.run_seconds(1000) == pytest.approx(6.0 + 988 * 0.4)
-    assert compiled.run_seconds(1000) == pytest.approx(12.0 + 30.0 + 988 * 0.2)
-    assert compiled.to_dict(1000)["startup_seconds"] == 12.0
-
-
-def test_the_reference_case_runs_another_revisions_own_benchmark(tmp_path: Path) -> None:
-    """`--reference REV`: a detached worktree of REV (removed afterwards), its own benchmark's case (a) with only the
-    options every revision knows, its package ahead of the installed one, and its timed rate as case (r), whose run
-    estimate leaves its warm-up out. An unknown revision ends in one line naming it."""
-    config = BenchmarkConfig(steps=7, warmup=3, rays=256, threads=2)
-    command = reference_command(config, Path("scene"), tmp_path / "r.json")
-    assert command[1:3] == ["-m", "ssnerf_method.scripts.benchmark_throughput"]
-    assert {"--cases", "--steps", "--warmup", "--rays", "--output"} <= set(command)
-    assert command[command.index("--cases") + 1] == "a" and "--threads" not in command
-    env = reference_env(tmp_path, 2)
-    assert env["PYTHONPATH"].split(os.pathsep)[0] == str(tmp_path) and env["OMP_NUM_THREADS"] == "2"
-    timed = {"method": "ssnerf-lite", "properties": ["edges"], "rays_per_batch": 256, "steps": 7, "seconds": 3.5}
-    result = reference_result({"cases": {"a": timed}}, "abc123")
-    assert (result.key, result.ms_per_step, result.run_seconds(1000)) == ("r", pytest.approx(500.0),
-                                                                         pytest.approx(500.0))
-    if subprocess.run(["git", "-C", str(Path(__file__).parent), "rev-parse", "HEAD"], capture_output=True).returncode:
-        pytest.skip("not a git checkout")
-    with reference_worktree("HEAD") as worktree:
-        assert (worktree / "ssnerf_method" / "scripts" / "benchmark_throughput.py").is_file()
-    assert not worktree.exists()
-    with pytest.raises(SystemExit, match="no-such-revision.*name a commit"):
-        with reference_worktree("no-such-revision"):
-            pass

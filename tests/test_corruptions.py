@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy import ndimage
 
-from ssnerf_method.labels.corruptions import corrupt_dense, corrupt_semantics, corrupt_sparse
+from ssnerf_method.label_makers.corruptions import corrupt_dense, corrupt_semantics, corrupt_sparse
 from ssnerf_method.properties import SEMANTIC_IGNORE
 
 

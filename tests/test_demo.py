@@ -10,9 +10,9 @@ import pytest
 import torch
 from PIL import Image
 
+from ssnerf_method.cli.demo import DemoConfig, run
 from ssnerf_method.metrics import METRICS
 from ssnerf_method.properties import REGISTRY
-from ssnerf_method.scripts.demo import DemoConfig, run
 
 REPORTED = {spec.metric_prefix + key for spec in REGISTRY.values() for key, _ in METRICS[spec.metric].reported}
 """Every property's reported numbers (the paper's headline and the measures beside it)."""

@@ -19,15 +19,15 @@ from PIL import Image
 
 from nerfstudio.data.dataparsers.base_dataparser import transform_poses_to_original_space
 
+from ssnerf_method.cli.label import main as label_main
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labelling.label_dataset import LABELLED, LabelDatasetConfig, label_dataset
-from ssnerf_method.labelling.rendered_depth import file_to_model, load_depth_model, move_pose
+from ssnerf_method.label_tool.label_dataset import LABELLED, LabelDatasetConfig, label_dataset
+from ssnerf_method.label_tool.rendered_depth import file_to_model, load_depth_model, move_pose
 from ssnerf_method.model.ssnerf_model import SSNeRFModel
 from ssnerf_method.rendering.depth import rendered_z_depth
 from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import build_room
-from ssnerf_method.scripts.label import main as label_main
 
 from conftest import ssnerf_label_refuses
 

@@ -3,8 +3,6 @@ pay."""
 
 from __future__ import annotations
 
-from copy import deepcopy
-
 import pytest
 import torch
 
@@ -64,42 +62,26 @@ def test_planes_cost_nothing_bends_do_and_edges_soften_them() -> None:
 
 
 def test_the_model_loss_needs_the_patches_and_reaches_the_density() -> None:
-    from test_normals_density import small_model
     from test_properties import make_bundle
+    from test_regularisers import small_model, terms
 
     torch.manual_seed(0)
     patches = 2
     bundle = make_bundle(num_rays=32)
     batch = {"image": torch.rand(32, 3)}
     patched = {**batch, SMOOTHNESS_PATCHES_KEY: torch.tensor(patches)}
-    for overrides, given, expected in (({}, patched, True), ({"depth_smoothness_mult": 0.0}, patched, False),
-                                       ({}, batch, False)):
-        model = small_model((), **{"normals_density_mult": 0.0, "depth_smoothness_mult": 0.1, **overrides})
+    for mult, given, expected in ((0.1, patched, True), (0.0, patched, False), (0.1, batch, False)):
+        model = small_model((), regularisers=terms(depth_smoothness={"mult": mult}))
         model.train()
         outputs = model(bundle)
         losses = model.get_loss_dict(outputs, given, model.get_metrics_dict(outputs, given))
-        assert ("depth_smoothness_loss" in losses) == expected, overrides
+        assert ("depth_smoothness_loss" in losses) == expected, (mult, given.keys())
     model.zero_grad()
     outputs = model(bundle)  # the last model: smoothness on
     loss = model.get_loss_dict(outputs, patched, model.get_metrics_dict(outputs, patched))["depth_smoothness_loss"]
     assert torch.isfinite(loss) and float(loss.detach()) > 0
     loss.backward()
     assert any(p.grad is not None and p.grad.abs().max() > 0 for p in model.sampling.final_field.encoder.parameters())
-
-
-def test_one_model_switch_gives_the_sampler_its_patches() -> None:
-    from ssnerf_method.method_configs import ssnerf_lite_config
-    from ssnerf_method.pipelines.ssnerf_pipeline import hand_patches_to_sampler
-
-    config = deepcopy(ssnerf_lite_config.pipeline)
-    config.model.semantic_affinity_mult = 0.0  # (the other user of the patches)
-    hand_patches_to_sampler(config)
-    assert config.datamanager.pixel_sampler.smoothness_patches == 0  # off by default: batches as before
-    config.model.depth_smoothness_mult, config.model.pixel_patches = 0.1, 7
-    hand_patches_to_sampler(config)
-    assert config.datamanager.pixel_sampler.smoothness_patches == 7
-    assert config.datamanager.pixel_sampler.smoothness_patch_stride == 4 and not (
-        config.datamanager.pixel_sampler.patches_while_class_sparse)
 
 
 def test_patches_keep_off_the_pixels_a_mask_excludes() -> None:

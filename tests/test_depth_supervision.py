@@ -1,26 +1,21 @@
-"""Depth supervision (`depth_loss_mult`): nerfstudio's depth loss on the frames' depth maps, off by default."""
+"""Depth supervision (the `depth` regulariser): nerfstudio's depth loss on the frames' depth maps, off by default."""
 
 from __future__ import annotations
 
 import torch
 from test_properties import make_bundle
-
-from nerfstudio.data.scene_box import SceneBox
+from test_regularisers import small_model as regularised_model
+from test_regularisers import terms
 
 from ssnerf_method.data.dataset import DEPTH_KEY
-from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 
 NUM_RAYS = 64
 
 
 def small_model(depth_loss_mult: float, scale: float = 1.0):
-    config = SSNeRFModelConfig(
-        properties=(), encoder="hashgrid", grid_levels=4, grid_max_res=32, grid_log2_hashmap_size=10,
-        grid_hidden_dim=16, grid_feature_dim=8, decoder_width=16, num_coarse_samples=32, num_fine_samples=16,
-        density_noise=0.0, density_activation="trunc_exp", depth_loss_mult=depth_loss_mult, depth_sigma=0.01,
-    )
-    return config.setup(scene_box=SceneBox(aabb=torch.tensor([[-2.0] * 3, [2.0] * 3])), num_train_data=1,
-                        metadata={"semantic_classes": [], "available_properties": (), "dataparser_scale": scale})
+    return regularised_model((), regularisers=terms(depth={"mult": depth_loss_mult, "sigma": 0.01}),
+                             num_coarse_samples=32, num_fine_samples=16,
+                             metadata={"semantic_classes": [], "available_properties": (), "dataparser_scale": scale})
 
 
 def bundle_and_batch(metres: float):

@@ -340,7 +340,7 @@ def test_the_site_builds_without_warnings_and_lists_every_property(tmp_path: Pat
     for spec in REGISTRY.values():
         assert f"<code class=\"docutils literal notranslate\"><span class=\"pre\">{spec.name}</span></code>" \
             f" ({spec.short})" in table, spec.name
-    assert "SSNeRFModelConfig" in api and "balance_ratio" in api and "SparsityStudy" in api
+    assert "SSNeRFModelConfig" in api and "regularisers" in api and "SparsityStudy" in api
     for page in ("getting-started", "own-data", "viewer", "method", "benchmark", "dataset-format", "troubleshooting",
                  "results/index", "development"):
         assert (tmp_path / f"{page}.html").is_file(), page

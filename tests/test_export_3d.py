@@ -16,8 +16,8 @@ from scipy.spatial import cKDTree
 from nerfstudio.scripts.exporter import ExportPointCloud, ExportPoissonMesh, ExportTSDFMesh
 from nerfstudio.utils.eval_utils import eval_setup
 
-from ssnerf_method.scripts.export_points import ExportPointsConfig
-from ssnerf_method.scripts.export_points import main as export_points
+from ssnerf_method.cli.export_points import ExportPointsConfig
+from ssnerf_method.cli.export_points import main as export_points
 
 
 @pytest.fixture(scope="module")

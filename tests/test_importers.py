@@ -18,20 +18,20 @@ import pytest
 import torch
 from PIL import Image
 
+from ssnerf_method.cli.import_data import main
 from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
-from ssnerf_method.data.importers import (
+from ssnerf_method.data.io import DatasetInputError
+from ssnerf_method.data.transforms import load_transforms
+from ssnerf_method.importers import (
     PaperLLFFImportConfig,
     SemanticNeRFImportConfig,
     import_paper_llff,
     import_semantic_nerf,
 )
-from ssnerf_method.data.importers.paper_llff import convert_normals, normals_axes_conversion
-from ssnerf_method.data.io import DatasetInputError
-from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labelling.label_dataset import LabelDatasetConfig, label_dataset
+from ssnerf_method.importers.paper_llff import convert_normals, normals_axes_conversion
+from ssnerf_method.label_tool.label_dataset import LabelDatasetConfig, label_dataset
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, labelled_properties
-from ssnerf_method.scripts.import_data import main
 
 from source_layouts import (
     HEIGHT,

@@ -16,18 +16,18 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from ssnerf_method.cli.label import main
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
-from ssnerf_method.labelling.label_dataset import KEPT, LABELLED, LabelDatasetConfig, label_dataset
-from ssnerf_method.labelling.paths import LABEL_FOLDER
-from ssnerf_method.labels import canny_edges
-from ssnerf_method.labels.keypoints import keypoint_label
-from ssnerf_method.labels.makers import LabelOptions
+from ssnerf_method.label_makers import canny_edges
+from ssnerf_method.label_makers.keypoints import keypoint_label
+from ssnerf_method.label_makers.makers import LabelOptions
+from ssnerf_method.label_tool.label_dataset import KEPT, LABELLED, LabelDatasetConfig, label_dataset
+from ssnerf_method.label_tool.paths import LABEL_FOLDER
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
-from ssnerf_method.scripts.label import main
 
 from conftest import look_at
 from test_training import lite_config, train
@@ -325,7 +325,7 @@ def test_read_only_dataset_suggests_output_elsewhere(scene: Path, tmp_path: Path
 
 def test_cli_prints_one_line_and_exits_1(tmp_path: Path) -> None:
     result = subprocess.run(
-        [sys.executable, "-m", "ssnerf_method.scripts.label", str(tmp_path / "missing")],
+        [sys.executable, "-m", "ssnerf_method.cli.label", str(tmp_path / "missing")],
         capture_output=True, text=True, timeout=120,
     )
     assert result.returncode == 1

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from ssnerf_method.data.transforms import Transforms, camera_rays, frame_camera
-from ssnerf_method.labels import (
+from ssnerf_method.label_makers import (
     camera_ray_directions,
     canny_edges,
     keypoint_heatmap,
@@ -18,12 +18,12 @@ from ssnerf_method.labels import (
     normals_from_depth,
     normals_from_points,
 )
-from ssnerf_method.labels.encoding import decode_normals
-from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_label, keypoint_response_map
-from ssnerf_method.labels.makers import FrameSources, LabelOptions, NormalsFromDepth, SemanticsCopy
-from ssnerf_method.labels.normals import smooth_normals
-from ssnerf_method.labels.segments import grow_in_segments
-from ssnerf_method.labels.surf import local_max_3x3x3
+from ssnerf_method.label_makers.encoding import decode_normals
+from ssnerf_method.label_makers.keypoints import detect_keypoints, keypoint_label, keypoint_response_map
+from ssnerf_method.label_makers.makers import FrameSources, LabelOptions, NormalsFromDepth, SemanticsCopy
+from ssnerf_method.label_makers.normals import smooth_normals
+from ssnerf_method.label_makers.segments import grow_in_segments
+from ssnerf_method.label_makers.surf import local_max_3x3x3
 
 WIDTH, HEIGHT, FOCAL = 96, 72, 80.0
 CX, CY = WIDTH / 2, HEIGHT / 2

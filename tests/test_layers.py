@@ -14,18 +14,19 @@ import ssnerf_method
 ROOT = Path(ssnerf_method.__file__).parent
 
 LAYERS: List[Set[str]] = [
-    {"compat", "errors", "atomic", "labels"},  # label makers: numpy and OpenCV on images, nothing of ours above them
+    {"compat", "errors", "atomic", "label_makers"},  # numpy and OpenCV on images, nothing of ours above them
     {"properties"},  # the registry
     {"data", "metrics"},
+    {"importers"},  # other datasets and annotation files (COCO, labelme) read into ours
     {"scene", "fields"},
     {"rendering", "viewer"},  # sampling runs the fields (their compiled form while training)
     {"model"},
     {"pipelines"},
-    {"evaluation", "export", "labelling"},  # ssnerf-label's engine: --depth-from renders with a trained model
+    {"evaluation", "export", "label_tool"},  # ssnerf-label's engine: --depth-from renders with a trained model
     {"engine"},  # the trainer (atomic checkpoints, the last good one loaded)
     {"method_configs"},
     {"experiments"},
-    {"scripts"},
+    {"cli"},  # every console script
 ]
 """Bottom to top. A subpackage (or top-level module) may import from its own unit and from lower layers only."""
 

@@ -28,8 +28,8 @@ class NormalTurn(LabelMaker):
     help = "How fast the surface turns, from the frame's normals."
 
     def make(self, frame, options):
-        from ssnerf_method.labels.encoding import to_uint8
-        from ssnerf_method.labels.makers import Skip, with_alpha
+        from ssnerf_method.label_makers.encoding import to_uint8
+        from ssnerf_method.label_makers.makers import Skip, with_alpha
 
         if frame.normals is None:
             raise Skip("no normals")
@@ -66,7 +66,7 @@ SCRIPT = textwrap.dedent('''
     from nerfstudio.utils.eval_utils import eval_setup
     from ssnerf_method.data.transforms import load_transforms
     from ssnerf_method.experiments.benchmark import BenchmarkConfig, run
-    from ssnerf_method.labelling.label_dataset import LabelDatasetConfig, label_dataset
+    from ssnerf_method.label_tool.label_dataset import LabelDatasetConfig, label_dataset
     from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
     scene = make_scene(MakeSceneConfig(output_dir=out / "scene", width=40, height=30, num_frames=10,

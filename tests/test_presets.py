@@ -12,9 +12,9 @@ from typing import Any
 import pytest
 import yaml
 
+from ssnerf_method.cli.study import STUDIES, parse
 from ssnerf_method.experiments import presets
 from ssnerf_method.experiments.benchmark import BenchmarkConfig
-from ssnerf_method.scripts.study import STUDIES, parse
 
 REPO = Path(__file__).resolve().parents[1]
 PRESETS = sorted((REPO / "configs").glob("*.yaml"))

@@ -237,21 +237,6 @@ def test_class_uncertainty_is_entropy_over_the_named_classes() -> None:
     assert values["semantics"].tolist() == [0, 0, 0] and values["semantics_uncertainty"].shape == (3,)
 
 
-def test_uncertainty_detection_figures_tell_a_useful_map_from_chance() -> None:
-    """The figures `benchmark_uncertainty` reports: 1 for a map bright exactly on the wrong pixels, 0 for the reverse,
-    0.5 (AUROC) for a constant map, about the top share for a random one."""
-    from ssnerf_method.scripts.benchmark_uncertainty import detection
-
-    wrong = np.zeros(1000, dtype=bool)
-    wrong[::10] = True
-    useful = detection(wrong.astype(np.float64), wrong, 0.2)
-    assert useful == {"auroc": 1.0, "wrong_in_top": 1.0}
-    assert detection(1.0 - wrong, wrong, 0.2)["auroc"] == 0.0
-    assert detection(np.full(1000, 0.3), wrong, 0.2)["auroc"] == 0.5
-    chance = detection(np.random.default_rng(0).random(1000), wrong, 0.2)
-    assert abs(chance["auroc"] - 0.5) < 0.1 and abs(chance["wrong_in_top"] - 0.2) < 0.1
-
-
 # ---------------------------------------------------------------------------------------------------- normals
 
 
@@ -277,7 +262,6 @@ def test_world_normals_rotated_into_camera_frame() -> None:
 
 def test_world_normals_with_conftest_look_at() -> None:
     """The same with a camera built like the tiny dataset's: at (2, 0, 0) looking at the origin."""
-    import numpy as np
 
     from conftest import look_at
 

@@ -12,9 +12,9 @@ import pytest
 import torch
 
 from ssnerf_method.data.classes import CLASS_ID, SEMANTIC_CLASSES
-from ssnerf_method.labels.keypoints import detect_keypoints, keypoint_response_map
-from ssnerf_method.labels.normals import normals_from_depth
-from ssnerf_method.labels.shading import lambertian_shading
+from ssnerf_method.label_makers.keypoints import detect_keypoints, keypoint_response_map
+from ssnerf_method.label_makers.normals import normals_from_depth
+from ssnerf_method.label_makers.shading import lambertian_shading
 from ssnerf_method.metrics import local_maxima
 from ssnerf_method.properties import labelled_properties
 from ssnerf_method.scene.make_scene import LABEL_DIRS, MakeSceneConfig, make_scene

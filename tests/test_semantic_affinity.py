@@ -4,13 +4,11 @@ sparse."""
 
 from __future__ import annotations
 
-from copy import deepcopy
-
 import pytest
 import torch
 
 from ssnerf_method.data.pixel_sampler import PATCH_RAYS, SMOOTHNESS_PATCHES_KEY, LabelledPixelSamplerConfig
-from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
+from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
 from ssnerf_method.model.losses import colour_affinity_loss
 from ssnerf_method.properties import class_property
 
@@ -73,8 +71,8 @@ def test_affinity_patches_are_drawn_only_while_the_class_labels_are_sparse(share
 
 
 def test_the_model_loss_follows_the_class_loss_and_reaches_the_field() -> None:
-    from test_normals_density import small_model
     from test_properties import make_bundle
+    from test_regularisers import small_model, terms
 
     torch.manual_seed(0)
     patches = 2
@@ -86,7 +84,7 @@ def test_the_model_loss_follows_the_class_loss_and_reaches_the_field() -> None:
     losses = {}
     for mult in (0.0, 1.0, 2.0):
         torch.manual_seed(0)
-        model = small_model((CLASS_KEY,), normals_density_mult=0.0, semantic_affinity_mult=mult)
+        model = small_model((CLASS_KEY,), regularisers=terms(semantic_affinity={"mult": mult}))
         model.train()
         outputs = model(bundle)
         losses[mult] = model.get_loss_dict(outputs, batch, model.get_metrics_dict(outputs, batch))
@@ -96,22 +94,3 @@ def test_the_model_loss_follows_the_class_loss_and_reaches_the_field() -> None:
     assert float(affinity.detach()) == pytest.approx(2 * float(losses[1.0]["semantic_affinity_loss"].detach()))
     affinity.backward()
     assert any(p.grad is not None and p.grad.abs().max() > 0 for p in model.sampling.final_field.parameters())
-
-
-def test_the_affinity_alone_asks_for_patches_only_while_labels_are_sparse() -> None:
-    from ssnerf_method.method_configs import ssnerf_lite_config
-    from ssnerf_method.pipelines.ssnerf_pipeline import hand_patches_to_sampler
-
-    config = deepcopy(ssnerf_lite_config.pipeline)
-    sampler = config.datamanager.pixel_sampler
-    assert config.model.semantic_affinity_mult > 0 and sampler.smoothness_patch_stride == 4  # on by default
-    config.model.pixel_patches, config.model.semantic_affinity_stride = 5, 3
-    hand_patches_to_sampler(config)
-    assert sampler.smoothness_patches == 5 and sampler.patches_while_class_sparse
-    assert sampler.smoothness_patch_stride == 3
-    config = deepcopy(ssnerf_lite_config.pipeline)
-    sampler = config.datamanager.pixel_sampler
-    config.model.depth_smoothness_mult, config.model.pixel_patches = 0.1, 5  # it wants them on every batch
-    hand_patches_to_sampler(config)
-    assert sampler.smoothness_patches == 5 and not sampler.patches_while_class_sparse
-    assert sampler.smoothness_patch_stride == 4

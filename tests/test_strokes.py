@@ -25,7 +25,7 @@ from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.pixel_sampler import LabelledPixelSamplerConfig
 from ssnerf_method.data.strokes import STROKES_FILE, Stroke, StrokeStore, WorldFrame
 from ssnerf_method.evaluation.heuristic import PinholeView, splat
-from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
+from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 from ssnerf_method.viewer.label_panel import MAX_RAYS_PER_STROKE, LabelPanel, box_pixels, disc_pixels
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ssnerf_method.labels.surf import box_sum, detect_surf, integral_image, octave_sizes
+from ssnerf_method.label_makers.surf import box_sum, detect_surf, integral_image, octave_sizes
 
 BLOBS = [(60.0, 50.0, 3.0), (150.0, 60.0, 5.0), (110.0, 150.0, 8.0)]  # x, y, sigma
 
@@ -71,7 +71,7 @@ def explicit_kernels(size: int):
 
 
 def test_hessian_response_equals_explicit_box_filters() -> None:
-    from ssnerf_method.labels.surf import hessian_response
+    from ssnerf_method.label_makers.surf import hessian_response
 
     rng = np.random.default_rng(1)
     image = rng.random((40, 40))

@@ -111,7 +111,7 @@ def assert_one_line(lines: List[str], words: List[str]) -> None:
 
 
 def test_ssnerf_check(faulty, capsys) -> None:
-    from ssnerf_method.scripts.check import CheckConfig, main
+    from ssnerf_method.cli.check import CheckConfig, main
 
     _, data, words, root, before = faulty
     assert main(CheckConfig(data=data)) == 1
@@ -120,7 +120,7 @@ def test_ssnerf_check(faulty, capsys) -> None:
 
 
 def test_ssnerf_label(faulty, capsys, monkeypatch) -> None:
-    from ssnerf_method.scripts import label
+    from ssnerf_method.cli import label
 
     _, data, words, root, before = faulty
     monkeypatch.setattr(sys, "argv", ["ssnerf-label", str(data), "--workers", "1"])
@@ -178,7 +178,7 @@ def test_every_fault_is_listed_in_one_pass(tiny_dataset: Path) -> None:
 
 
 def test_clean_dataset_passes(tiny_dataset: Path, capsys) -> None:
-    from ssnerf_method.scripts.check import CheckConfig, main
+    from ssnerf_method.cli.check import CheckConfig, main
 
     validation = validate_dataset(tiny_dataset)
     assert validation.ok and validation.num_frames == 6 and validation.labelled["normals"] == 6

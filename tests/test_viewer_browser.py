@@ -88,7 +88,7 @@ def tiny_lite_config(scene: Path, output: Path) -> TrainerConfig:
     model.grid_levels, model.grid_max_res, model.grid_log2_hashmap_size = 8, 128, 15
     model.num_proposal_samples, model.num_field_samples = (32,), 24
     model.eval_num_rays_per_chunk = 4096
-    model.compile_fields = False  # (a tiny field: compiling would cost more than its 300 steps)
+    model.compile.enabled = False  # (a tiny field: compiling would cost more than its 300 steps)
     config.experiment_name = "viewer"
     config.steps_per_save = TRAIN_STEPS
     config.save_only_latest_checkpoint = True

@@ -27,7 +27,7 @@ from nerfstudio.cameras.cameras import Cameras
 
 from ssnerf_method.data.dataset import DEPTH_KEY, SSNeRFDataset
 from ssnerf_method.data.spacing import ANGLE_WEIGHT
-from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
+from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
 from ssnerf_method.properties import PropertySpec
 
 

@@ -31,7 +31,7 @@ from ssnerf_method.experiments.benchmark import BenchmarkConfig, ModelRun, Scene
 from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import Column, average, markdown, property_columns
 from ssnerf_method.experiments.studies import RUN_RECORD, Results, StudyConfig, single, write_study_report
-from ssnerf_method.labels.corruptions import DEFAULT_RATES, corrupt_label_file
+from ssnerf_method.label_makers.corruptions import DEFAULT_RATES, corrupt_label_file
 from ssnerf_method.properties import REGISTRY, PropertyName, PropertySpec
 from ssnerf_method.rendering.palette import semantic_palette
 

@@ -34,7 +34,6 @@ from nerfstudio.utils.rich_utils import CONSOLE
 from ssnerf_method.atomic import save_torch_atomic, write_text_atomic
 from ssnerf_method.data.spacing import dataset_spacing, pose_spacing
 from ssnerf_method.engine.trainer import train_in_process
-from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.evaluation.figures import property_grid, shown, shown_label
 from ssnerf_method.evaluation.heuristic import (
     DepthSource,
@@ -44,7 +43,6 @@ from ssnerf_method.evaluation.heuristic import (
 )
 from ssnerf_method.evaluation.hybrid import HybridBaseline, HybridBaselineConfig
 from ssnerf_method.evaluation.scoring import score_predictor
-from ssnerf_method.experiments import presets
 from ssnerf_method.experiments.launcher import Job, LauncherOptions, exclusive, failure, launch
 from ssnerf_method.experiments.report import BASELINE_ROWS, write_report
 from ssnerf_method.method_configs import SHORT_RUN_STEPS, short_run
@@ -450,18 +448,3 @@ def run(config: BenchmarkConfig) -> Dict[str, Dict[str, Dict[str, float]]]:
     CONSOLE.print(report.read_text())
     CONSOLE.print(f"Benchmark done in {(time.time() - start) / 60:.1f} min: {report}")
     return results
-
-
-def entrypoint() -> None:
-    """Console script `ssnerf-benchmark` (`--preset configs/table1.yaml` reads its options from a file)."""
-    try:
-        run(presets.cli(BenchmarkConfig, "ssnerf-benchmark"))
-    except UserError as err:
-        exit_with(err, "ssnerf-benchmark")
-
-
-if __name__ == "__main__":
-    # through the importable module: Ray sends its jobs' functions by reference, and `__main__`'s would go by value
-    from ssnerf_method.experiments import benchmark
-
-    benchmark.entrypoint()

@@ -68,8 +68,8 @@ from ssnerf_method.experiments.launcher import Job, launch
 from ssnerf_method.experiments.report import average, markdown
 from ssnerf_method.experiments.studies import Results, StudyConfig, single, write_study_report
 from ssnerf_method.experiments.transfer import PATH_KEYS, evenly_spaced
-from ssnerf_method.labels.encoding import SEMANTIC_IGNORE
-from ssnerf_method.labels.segments import SEGMENT_SCALE, grow_in_segments
+from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
+from ssnerf_method.label_makers.segments import SEGMENT_SCALE, grow_in_segments
 from ssnerf_method.metrics import class_iou
 from ssnerf_method.properties import REGISTRY, class_property
 from ssnerf_method.rendering.depth import rendered_z_depth

@@ -11,15 +11,12 @@ renders and ground truth of the same scene line up.
 
 from __future__ import annotations
 
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Dict, List, Literal
 
 import numpy as np
 import torch
-import tyro
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn
 
 from nerfstudio.cameras.cameras import Cameras
@@ -27,8 +24,8 @@ from nerfstudio.utils.eval_utils import eval_setup
 from nerfstudio.utils.rich_utils import CONSOLE
 
 from ssnerf_method.data.camera_path import interpolate_poses
-from ssnerf_method.data.importers.writer import DatasetWriter
 from ssnerf_method.data.io import DatasetInputError, StagedOutputFolder
+from ssnerf_method.importers.writer import DatasetWriter
 from ssnerf_method.rendering.depth import rendered_z_depth
 
 DEPTH_UNIT = 1e-3
@@ -164,19 +161,3 @@ def depth_millimetres(z_depth: torch.Tensor) -> np.ndarray:
     """(H, W) z-depth in metres as uint16 in units of `DEPTH_UNIT` (0 = no depth, beyond 65.535 m clipped)."""
     values = torch.nan_to_num(z_depth.detach().float(), nan=0.0).cpu().numpy() / DEPTH_UNIT
     return np.clip(np.round(values), 0, 65535).astype(np.uint16)
-
-
-def entrypoint() -> None:
-    """Console script `ssnerf-export-dataset`."""
-    config = tyro.cli(ExportDatasetConfig)
-    start = time.perf_counter()
-    try:
-        path = export_dataset(config)
-    except DatasetInputError as err:
-        sys.exit(f"ssnerf-export-dataset: {err}")
-    CONSOLE.print(f"ssnerf-export-dataset: wrote {path} in {time.perf_counter() - start:.1f} s. Train on it with "
-                  f"`ns-train ssnerf-lite --data {path.parent}`.")
-
-
-if __name__ == "__main__":
-    entrypoint()

@@ -10,7 +10,8 @@ line says so and the function runs eagerly from then on.
 from __future__ import annotations
 
 import functools
-from typing import Callable, Generic, Optional, TypeVar
+from dataclasses import dataclass
+from typing import Any, Callable, Generic, Optional, TypeVar
 
 import torch
 import torch._functorch.config
@@ -83,3 +84,28 @@ class CompiledOrEager(Generic[Output]):
         CONSOLE.print(f"[yellow]torch.compile of {self.label} failed ({type(err).__name__}: {reason[:160]}); it runs "
                       "eagerly from now on (same results, slower steps).", soft_wrap=True)
         self.compiled = None
+
+
+@dataclass
+class CompileConfig:
+    """When a training run goes through `torch.compile`: the field's and the proposal networks' training forwards and
+    backwards (the same outputs from a cheaper CPU step, after a compile of tens of seconds at the first step, less
+    once inductor's cache in the temp folder holds it). Where compiling fails, one console line and eager steps.
+    Evaluation, the viewer and CUDA training stay eager."""
+
+    enabled: bool = True
+    """Compile CPU training runs of at least `min_steps` steps."""
+    bfloat16_matmuls: bool = True
+    """On a CPU that multiplies bfloat16 in hardware (AMX or AVX512-BF16; elsewhere it is ignored): the compiled
+    networks' matrix multiplications in bfloat16 (`torch.autocast`), as tiny-cuda-nn runs nerfstudio's MLPs in half
+    precision on a GPU. Parameters, hash tables, rendering and losses stay float32."""
+    min_steps: int = 300
+    """Runs of fewer training steps (the trainer's `max_num_iterations`) stay eager: the compile would not pay off."""
+
+    def apply(self, sampling: Any, device: torch.device, run_steps: int) -> bool:
+        """Compile `sampling`'s networks for training (its `compile_for_training`) when this run should be; returns
+        whether it was asked to."""
+        if not (self.enabled and device.type == "cpu" and run_steps >= self.min_steps):
+            return False
+        sampling.compile_for_training(self.bfloat16_matmuls and native_bfloat16())
+        return True

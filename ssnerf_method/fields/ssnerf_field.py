@@ -12,13 +12,12 @@ from __future__ import annotations
 from typing import Dict, List, Literal, Optional, Sequence, Tuple
 
 import torch
-import torch.nn.functional as F
 from jaxtyping import Float
 from torch import Tensor, nn
 
 from nerfstudio.cameras.rays import RaySamples
 from nerfstudio.field_components.activations import trunc_exp
-from nerfstudio.field_components.encodings import NeRFEncoding, SHEncoding
+from nerfstudio.field_components.encodings import HashEncoding, NeRFEncoding, SHEncoding
 from nerfstudio.field_components.field_heads import FieldHeadNames
 from nerfstudio.field_components.mlp import MLP
 from nerfstudio.field_components.spatial_distortions import SceneContraction
@@ -27,7 +26,7 @@ from nerfstudio.fields.base_field import Field, get_normalized_directions
 from ssnerf_method.data.pose_metadata import POSE_METADATA_KEY
 from ssnerf_method.fields.compiled import CompiledOrEager
 from ssnerf_method.fields.encoders import PositionEncoder, unit_cube
-from ssnerf_method.properties import Branch, PropertySpec
+from ssnerf_method.properties import REGISTRY, Branch, PropertySpec
 
 
 class BranchDecoder(nn.Module):
@@ -53,7 +52,7 @@ class GroupedDecoders(nn.Module):
     branch's."""
 
     def __init__(
-        self, in_dim: int, widths: Dict[str, int], num_layers: int, groups: Dict[str, Dict[str, int]],
+        self, in_dim: int, width: int, num_layers: int, groups: Dict[str, Dict[str, int]],
         extended: Optional[Dict[str, int]] = None,
     ) -> None:
         super().__init__()
@@ -61,7 +60,7 @@ class GroupedDecoders(nn.Module):
         """The branch's properties, as `BranchDecoder.names`."""
         self.extended = {key: dim for key, dim in (extended or {}).items() if groups.get(key)}
         self.decoders = nn.ModuleDict({
-            key: BranchDecoder(in_dim + self.extended.get(key, 0), widths[key], num_layers, heads)
+            key: BranchDecoder(in_dim + self.extended.get(key, 0), width, num_layers, heads)
             for key, heads in groups.items() if heads
         })
 
@@ -76,24 +75,9 @@ class GroupedDecoders(nn.Module):
         return outputs
 
 
-DecoderSharing = Literal["branch", "property", "rgb-apart"]
+DecoderSharing = Literal["branch", "property"]
 """How a decoder branch's properties share MLPs. `branch`: one MLP per branch, shared by its properties (the paper's
-F_dec^v and F_dec^nv); `property`: one MLP per property; `rgb-apart`: RGB has its own MLP and each branch's other
-properties share one (a single-property model is the same as with `property`; more properties cost less)."""
-
-
-def decoder_groups(
-    sharing: DecoderSharing, heads: Dict[str, int], rgb_name: str
-) -> Optional[Dict[str, Dict[str, int]]]:
-    """The MLP groups of one branch's heads (by group key), or None for one shared MLP (`branch`).
-    `property` keys each MLP by its property, so checkpoints keep their parameter names."""
-    if sharing == "branch":
-        return None
-    if sharing == "property":
-        return {name: {name: channels} for name, channels in heads.items()}
-    others = {name: channels for name, channels in heads.items() if name != rgb_name}
-    return {rgb_name: {name: channels for name, channels in heads.items() if name == rgb_name},
-            "properties": others}
+F_dec^v and F_dec^nv); `property`: one MLP per property, keyed by its name."""
 
 
 class SSNeRFField(Field):
@@ -105,18 +89,15 @@ class SSNeRFField(Field):
         encoder: the shared position encoder F_enc.
         direction_encoding: "nerf" (4-frequency sinusoids, the paper's) or "sh" (spherical harmonics, degree 4).
         decoder_width, decoder_layers: size of each decoder MLP.
-        decoder_sharing: one decoder MLP per branch (the paper's), one per property, or RGB's own and one per
-            branch for the other properties (`DecoderSharing`).
-        property_decoder_width: width of the MLPs that decode properties apart from RGB (not with `branch`
-            sharing, where they share RGB's); None: `decoder_width`.
+        decoder_sharing: one decoder MLP per branch (the paper's) or one per property (`DecoderSharing`).
         density_activation: "relu" (NeRF) or "trunc_exp" (grid encoders, as in nerfacto).
         density_noise: std of Gaussian noise on raw density while training (NeRF regulariser; 0 disables).
         implementation: "tcnn" or "torch" for the spherical-harmonics encoding.
-        class_grid: an encoding of contracted positions (mapped to [0, 1]) whose features the decoder MLPs of
-            `class_grid_properties` see beside e_x: a coarse grid, spatially smooth, through which a few labelled
-            pixels spread to the surfaces around them (e_x is sharp: alone, sparse labels stay where they are), and
-            which keeps what is constant over a surface (its normal) from e_x's fine-scale noise.
-            None: the paper's decoders.
+        class_grid_max_res: if > 0, the finest resolution of a coarse hash grid over contracted positions (mapped
+            to [0, 1]; 4 levels from 16) whose features the decoder MLPs of `class_grid_properties` see beside e_x:
+            spatially smooth, it spreads a few labelled pixels to the surfaces around them (e_x is sharp: alone,
+            sparse labels stay where they are) and keeps what is constant over a surface (its normal) from e_x's
+            fine-scale noise. 0: the paper's decoders.
         class_grid_properties: the properties whose decoder sees `class_grid` (each gets an MLP of its own).
         class_grid_frequencies: if > 0, the decoder of a class-valued property in `class_grid_properties` also sees
             sinusoids of the class grid's positions at this many octaves (the lowest one period across [0, 1]): a
@@ -134,19 +115,25 @@ class SSNeRFField(Field):
         decoder_width: int = 128,
         decoder_layers: int = 1,
         decoder_sharing: DecoderSharing = "branch",
-        property_decoder_width: Optional[int] = None,
         density_activation: Literal["relu", "trunc_exp"] = "relu",
         density_noise: float = 0.0,
         implementation: Literal["tcnn", "torch"] = "torch",
-        class_grid: Optional[nn.Module] = None,
+        class_grid_max_res: int = 0,
         class_grid_properties: Sequence[str] = (),
         class_grid_frequencies: int = 0,
     ) -> None:
         super().__init__()
         self.specs = {spec.name: spec for spec in specs}
         self.encoder = encoder
-        gridded = {spec.name for spec in specs if spec.name in class_grid_properties}
-        self.class_grid = class_grid if gridded else None
+        unknown = sorted(set(class_grid_properties) - set(REGISTRY))
+        if unknown:
+            raise ValueError(f"class_grid_properties: {', '.join(unknown)} is not a property; choose among "
+                             f"{', '.join(REGISTRY)}")
+        gridded = {spec.name for spec in specs if class_grid_max_res > 0 and spec.name in class_grid_properties}
+        self.class_grid: Optional[HashEncoding] = None
+        if gridded:
+            self.class_grid = HashEncoding(num_levels=4, min_res=16, max_res=class_grid_max_res, log2_hashmap_size=17,
+                                           features_per_level=2, implementation=implementation)
         grid_dim = self.class_grid.get_out_dim() if self.class_grid is not None else 0  # type: ignore[operator]
         self.class_sinusoids: Optional[NeRFEncoding] = None
         if self.class_grid is not None and class_grid_frequencies > 0:
@@ -173,13 +160,13 @@ class SSNeRFField(Field):
             "v": encoder.feature_dim + self.direction_encoding.get_out_dim(),
             "nv": encoder.feature_dim + (self.pose_encoding.get_out_dim() if self.pose_encoding is not None else 0),
         }
-        rgb_name = next((spec.name for spec in specs if spec.label_key == "image"), "")
         self.decoders = nn.ModuleDict()
         for branch, in_dim in branch_inputs.items():
             heads = {spec.name: spec.kind.head_channels(num_classes) for spec in specs if spec.branch == branch}
             if not heads:
                 continue
-            groups = decoder_groups(decoder_sharing, heads, rgb_name)
+            groups = {name: {name: channels} for name, channels in heads.items()} if decoder_sharing == "property" \
+                else None
             apart = [name for name in heads if name in gridded] if grid_dim else []
             if groups is None and not apart:
                 self.decoders[branch] = BranchDecoder(in_dim, decoder_width, decoder_layers, heads)
@@ -189,9 +176,7 @@ class SSNeRFField(Field):
                 shared = {key: {name: channels for name, channels in group.items() if name not in apart}
                           for key, group in groups.items()}
                 groups = {**shared, **{name: {name: heads[name]} for name in apart}}
-            widths = {key: decoder_width if rgb_name in group or key == branch  # RGB's, or `branch`'s shared MLP
-                      else property_decoder_width or decoder_width for key, group in groups.items()}
-            self.decoders[branch] = GroupedDecoders(in_dim, widths, decoder_layers, groups,
+            self.decoders[branch] = GroupedDecoders(in_dim, decoder_width, decoder_layers, groups,
                                                     {name: extra_dims[name] for name in apart})
 
     def density_at(
@@ -215,16 +200,6 @@ class SSNeRFField(Field):
         if self.class_sinusoids is not None:
             grid = torch.cat([grid, self.class_sinusoids(cube).to(grid)], dim=-1)
         return raw_density, torch.cat([feature, grid.view(*feature.shape[:-1], -1).to(feature)], dim=-1)
-
-    def density_normals(self, positions: Float[Tensor, "*bs 3"], step: float) -> Float[Tensor, "*bs 3"]:
-        """The density's own outward unit normals at world positions: minus its gradient, by forward differences of
-        `step` world units along each axis (differentiable with respect to F_enc, unlike an autograd gradient through
-        a compiled field, and smoothed over `step`)."""
-        offsets = torch.cat([torch.zeros(1, 3), step * torch.eye(3)]).to(positions)
-        probes = positions[..., None, :] + offsets  # (*bs, 4, 3): the position, then one step along x, y and z
-        raw_density, _ = self.encoder(self.spatial_distortion(probes.reshape(-1, 3)))
-        raw_density = raw_density.view(*positions.shape[:-1], 4).float()
-        return -F.normalize(raw_density[..., 1:] - raw_density[..., :1], dim=-1)
 
     def activate_density(self, raw_density: Float[Tensor, "*bs 1"]) -> Float[Tensor, "*bs 1"]:
         """Density from F_enc's raw output: the training noise (NeRF's regulariser), then the activation."""

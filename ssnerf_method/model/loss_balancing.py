@@ -12,7 +12,8 @@ property trains learn as before (Adam is blind to the scale of a gradient that o
 
 from __future__ import annotations
 
-from typing import Dict, List, Sequence
+from dataclasses import dataclass
+from typing import Dict, List, Optional, Sequence
 
 import torch
 from torch import Tensor, nn
@@ -62,3 +63,24 @@ class LossBalancer(nn.Module):
             return
         allowed = self.ratio * self.rgb_norm / self.norms.clamp_min(1e-12)
         self.factors.copy_(allowed.clamp(max=1.0))
+
+    def scale(self, losses: Dict[str, Tensor], rgb_name: str, prefixes: Sequence[str], parameters: List[nn.Parameter],
+              measure: bool) -> None:
+        """Scale each balanced property's `<prefix><name>_loss` in `losses` (every level's) by its multiplier, after
+        re-measuring the gradient norms on `parameters` (F_enc's) from the final level's losses if `measure`."""
+        if measure:
+            self.update(losses[f"{rgb_name}_loss"], {name: losses[f"{name}_loss"] for name in self.names}, parameters)
+        for name in self.names:
+            for prefix in prefixes:
+                losses[f"{prefix}{name}_loss"] = losses[f"{prefix}{name}_loss"] * self.multiplier(name)
+
+
+@dataclass
+class LossBalancerConfig:
+    """Gradient-norm balancing (`LossBalancer`): off (`ratio` None) trains the paper's fixed weighted sum."""
+
+    ratio: Optional[float] = None
+    """If set, every `every` steps each property's loss is scaled (by at most 1) so that its gradient into F_enc is at
+    most this multiple of RGB's."""
+    every: int = 100
+    """Steps between two measurements of the gradient norms (each costs one backward pass per loss)."""

@@ -28,6 +28,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineC
 
 from ssnerf_method.errors import UserError
 from ssnerf_method.metrics import METRICS, Statistics, add_statistics
+from ssnerf_method.viewer.label_panel import add_label_panel
 
 
 @dataclass
@@ -47,19 +48,19 @@ class TrainingDiverged(UserError):
 
 
 def hand_patches_to_sampler(config: SSNeRFPipelineConfig) -> None:
-    """The model's depth smoothness and semantic affinity train on pixel patches the sampler draws: with either on,
-    the sampler's `smoothness_patches` is set to the model's `pixel_patches` (one switch for the user). With the
-    affinity alone, the patches are drawn only while the class labels are sparse, in the frames that hold some, at
-    the affinity's stride."""
+    """The model's regularisers that train on 3x3 pixel patches (`RegulariserConfig.pixel_patches`) get them from the
+    pixel sampler: the most patches any asks for; drawn on every batch if one of them wants that, else only while the
+    class labels are sparse, at that term's stride."""
     sampler = getattr(config.datamanager, "pixel_sampler", None)
-    smoothness = getattr(config.model, "depth_smoothness_mult", 0.0) > 0
-    affinity = getattr(config.model, "semantic_affinity_mult", 0.0) > 0
-    if not (smoothness or affinity) or not hasattr(sampler, "smoothness_patches"):
+    terms = getattr(config.model, "regularisers", {}).values()
+    requests = [request for request in (term.pixel_patches() for term in terms) if request is not None]
+    if not requests or not hasattr(sampler, "smoothness_patches"):
         return
-    sampler.smoothness_patches = config.model.pixel_patches  # type: ignore[union-attr,attr-defined]
-    sampler.patches_while_class_sparse = not smoothness  # type: ignore[union-attr,attr-defined]
-    if not smoothness:
-        sampler.smoothness_patch_stride = config.model.semantic_affinity_stride  # type: ignore[union-attr,attr-defined]
+    sampler.smoothness_patches = max(request.count for request in requests)  # type: ignore[union-attr]
+    sampler.patches_while_class_sparse = all(r.only_while_class_sparse for r in requests)  # type: ignore[union-attr]
+    strides = [request.stride for request in requests if request.stride is not None]
+    if sampler.patches_while_class_sparse and strides:  # type: ignore[union-attr]
+        sampler.smoothness_patch_stride = strides[0]  # type: ignore[union-attr]
 
 
 class SSNeRFPipeline(VanillaPipeline):
@@ -72,9 +73,9 @@ class SSNeRFPipeline(VanillaPipeline):
         hand_patches_to_sampler(config)
         super().__init__(config, device, test_mode, *args, **kwargs)
         strokes = getattr(self.datamanager, "strokes", None)
-        if strokes is not None and hasattr(self.model, "add_label_panel"):
+        if strokes is not None and getattr(self.model, "semantic_classes", None) is not None:
             height = int(self.datamanager.train_dataset.cameras.height.max())
-            self.model.add_label_panel(strokes, self.datamanager.world_frame, height, training=test_mode == "val")
+            add_label_panel(self.model, strokes, self.datamanager.world_frame, height, training=test_mode == "val")
 
     def get_train_loss_dict(self, step: int):
         """nerfstudio's training step, then one check (a single device sync) that every loss is finite."""

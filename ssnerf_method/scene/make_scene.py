@@ -7,15 +7,13 @@ as the paper's Replica scenes (50 frames, every 8th held out from frame 0: the a
 gets an anti-aliased RGB image (2x2 supersampling) and, at pixel centres, z-depth, semantics and camera-frame normals
 from the ray caster; the normal label is either those exact normals or, as the paper made it, derived from the
 written depth map by finite differences (`--normals from-depth`, `ssnerf-label`'s code); shading, keypoint and edge
-labels come from `ssnerf_method.labels` (shading from the true normals, keypoints and edges from the written 8-bit
+labels come from `ssnerf_method.label_makers` (shading from the true normals, keypoints and edges from the written 8-bit
 RGB). Output is deterministic for a seed.
 """
 
 from __future__ import annotations
 
 import shutil
-import sys
-import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Dict, List, Literal, Optional
@@ -26,11 +24,11 @@ import tyro
 from ssnerf_method.data.camera_path import to_model_frame, write_camera_path
 from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
-from ssnerf_method.data.importers.writer import DatasetWriter, centred_pinhole
-from ssnerf_method.labels.encoding import to_uint8
-from ssnerf_method.labels.keypoints import Detector, KeypointLabel
-from ssnerf_method.labels.makers import FrameSources, LabelOptions
-from ssnerf_method.labels.shading import camera_ray_directions
+from ssnerf_method.importers.writer import DatasetWriter, centred_pinhole
+from ssnerf_method.label_makers.encoding import to_uint8
+from ssnerf_method.label_makers.keypoints import Detector, KeypointLabel
+from ssnerf_method.label_makers.makers import FrameSources, LabelOptions
+from ssnerf_method.label_makers.shading import camera_ray_directions
 from ssnerf_method.properties import labelled_properties
 from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import Room, build_room
@@ -314,21 +312,3 @@ def write_fly_through(config: MakeSceneConfig, fy: float) -> Path:
     poses = to_model_frame(np.stack(camera_path(config.trajectory, config.path_frames, config.seed)), outputs)
     return write_camera_path(config.output_dir / FLY_THROUGH, list(poses), config.width, config.height, fy,
                              config.path_seconds)
-
-
-def entrypoint() -> None:
-    """Console script: parse the CLI, render, and report where the scene went and how long it took."""
-    config = tyro.cli(MakeSceneConfig)
-    start = time.perf_counter()
-    try:
-        path = make_scene(config)
-    except FileExistsError as err:
-        sys.exit(f"ssnerf-make-scene: {err}")
-    print(
-        f"ssnerf-make-scene: wrote {config.num_frames} frames ({config.width}x{config.height}) to {path.parent} "
-        f"in {time.perf_counter() - start:.1f} s"
-    )
-
-
-if __name__ == "__main__":
-    entrypoint()

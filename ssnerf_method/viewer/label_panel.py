@@ -219,3 +219,17 @@ class LabelPanel(nn.Module):
         self._show_colour()
         self._say(f"Class {self.class_names.index(name)}: {name}. " + self.summary())
         return True
+
+
+def add_label_panel(model: nn.Module, store: StrokeStore, frame: WorldFrame, image_height: int, training: bool) -> None:
+    """Put the Label panel on a model that renders classes (its `semantic_classes` panel, `class_names`,
+    `num_classes`, `palette`), as `model.semantic_labelling`: strokes painted there go to `store`; a class added
+    there joins the model's `class_names` and the semantics panel's "Show class"."""
+    panel = model.semantic_classes
+
+    def new_class(names: List[str]) -> None:
+        model.class_names = names
+        panel.set_classes(names)
+
+    model.semantic_labelling = LabelPanel(store, frame, model.class_names, model.num_classes, model.palette,
+                                          image_height, training, on_new_class=new_class)

@@ -1,1 +1,0 @@
-"""`ssnerf-label`: derive property labels for a posed nerfstudio dataset with `ssnerf_method.labels`' makers."""

@@ -1,0 +1,57 @@
+"""A model config.yml saved before the current layout loads into it: `ns-eval`, `ns-render`, `ns-viewer` and our
+tools read a run's config.yml with PyYAML, which hands `SSNeRFModelConfig.__setstate__` the saved fields. Fields that
+moved into a nested config are put there; fields of options since removed are dropped; fields a run saved before
+they existed take their defaults."""
+
+from __future__ import annotations
+
+from copy import deepcopy
+from typing import Any, Dict, Tuple
+
+from ssnerf_method.fields.compiled import CompileConfig
+from ssnerf_method.model.loss_balancing import LossBalancerConfig
+from ssnerf_method.model.regularisers import default_regularisers
+
+MOVED: Dict[str, Tuple[str, ...]] = {
+    "compile_fields": ("compile", "enabled"),
+    "bfloat16_matmuls": ("compile", "bfloat16_matmuls"),
+    "compile_min_steps": ("compile", "min_steps"),
+    "balance_ratio": ("balancing", "ratio"),
+    "balance_every": ("balancing", "every"),
+    "depth_loss_mult": ("regularisers", "depth", "mult"),
+    "depth_loss_type": ("regularisers", "depth", "loss_type"),
+    "depth_sigma": ("regularisers", "depth", "sigma"),
+    "depth_smoothness_mult": ("regularisers", "depth_smoothness", "mult"),
+    "depth_smoothness_edge": ("regularisers", "depth_smoothness", "edge"),
+    "semantic_affinity_mult": ("regularisers", "semantic_affinity", "mult"),
+    "semantic_affinity_edge": ("regularisers", "semantic_affinity", "edge"),
+    "semantic_affinity_stride": ("regularisers", "semantic_affinity", "stride"),
+}
+"""Where a field of the flat layout (before 2026-12-07) lives now."""
+SHARED_PATCHES = ("pixel_patches", ("depth_smoothness", "semantic_affinity"))
+"""The one patch count both patch terms shared then; each has its own now."""
+REMOVED = ("normals_density_mult", "normals_density_samples", "normals_density_step", "hash_lookup",
+           "property_decoder_width")
+"""Options measurement left off, removed on 2026-12-07 (runs trained with them at their defaults load unchanged)."""
+
+
+def upgrade_model_state(state: Dict[str, Any]) -> Dict[str, Any]:
+    """`state` (a saved config's fields) in the current layout, nested configs at their defaults where not saved."""
+    state = dict(state)
+    nested = {"compile": CompileConfig(), "balancing": LossBalancerConfig(), "regularisers": default_regularisers()}
+    for name, default in nested.items():
+        state.setdefault(name, default)
+    state["regularisers"] = {**default_regularisers(), **deepcopy(state["regularisers"])}
+    for old, path in MOVED.items():
+        if old in state:
+            value, *where, last = state.pop(old), *path
+            target = state[where[0]]
+            target = target[where[1]] if len(where) > 1 else target
+            setattr(target, last, value)
+    if SHARED_PATCHES[0] in state:
+        patches = state.pop(SHARED_PATCHES[0])
+        for term in SHARED_PATCHES[1]:
+            state["regularisers"][term].patches = patches
+    for old in REMOVED:
+        state.pop(old, None)
+    return state
