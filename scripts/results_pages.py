@@ -219,8 +219,8 @@ def pages(docs: Path) -> Dict[Path, str]:
              "Measured results, one page per report, newest first. Each page is generated from the JSON file that "
              "`ssnerf-benchmark` or `ssnerf-study` wrote, committed beside it under `docs/results/<date>/` with the "
              "command, the commit and the machine it came from; no number here is typed by hand. To add one, see "
-             "[adding a results entry](../development.md#adding-a-results-entry). The history of earlier "
-             "measurements, as text, is in `CHANGELOG.md`."]
+             "[adding a results entry](../development.md#adding-a-results-entry). What changed for a user, and "
+             "when, is in `CHANGELOG.md`."]
     if entries:
         index += ["", "```{toctree}", ":maxdepth: 1", "",
                   *(entry.folder.relative_to(docs / RESULTS).as_posix() + "/index" for entry in entries), "```"]

@@ -84,32 +84,21 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             num_proposal_samples=(64, 32),
             num_field_samples=32,
             far_plane=1000.0,
-            # The paper's L1 drives 1-pixel edge maps to an empty map within a CPU budget (measured: blank after
-            # 3000 steps); MSE renders them. On the keypoint response map MSE weights the peaks' large errors more
-            # than L1's median does: keypoint F1 0.590 / 0.521 against L1's 0.541 / 0.478 on the two walkthrough
-            # scenes, 1000 steps (CHANGELOG.md, 2026-12-03).
+            # The paper's L1 drives 1-pixel edge maps to an empty map within a CPU budget; MSE renders them, and on
+            # the keypoint response map it weights the peaks' large errors more (higher keypoint F1, 2026-12-03).
             losses={"edges": "mse", "keypoints": "mse"},
-            # Properties' gradients into F_enc are 2-45x RGB's at the start; left so, Adam lets them set F_enc's
-            # updates and RGB loses ~4-8 dB at 1000 steps. Each is capped at a tenth of RGB's, and each property has
-            # its own decoder MLP on a 32-number feature (nerfacto's 15 is sized for RGB alone): measured best on the
-            # default scenes (docs/method.md, "Multi-task balancing").
+            # Properties' gradients into F_enc dwarf RGB's at the start and Adam lets them set its updates: each is
+            # capped at a tenth of RGB's, and each property has its own decoder MLP on a 32-number feature
+            # (docs/method.md, "Multi-task balancing").
             balancing=LossBalancerConfig(ratio=0.1),
             decoder_sharing="property",
             grid_feature_dim=32,
-            # Sparse semantic labels (a few pixels per frame, viewer strokes) spread through a coarse grid that only
-            # the semantics decoder sees: 1 labelled pixel per class per frame, test mIoU 0.226 -> 0.390 / 0.282 ->
-            # 0.331 on the two walkthrough scenes at 1000 steps, every frame labelled unchanged (CHANGELOG.md,
-            # 2026-12-04).
+            # Sparse semantic labels (clicks, viewer strokes) spread through a coarse grid and, for the semantics
+            # decoder, sinusoids of the position that carry a class along a surface past its labels (`ssnerf-study
+            # propagation`, docs/results/); normals, shading and keypoints lose e_x's speckle through the same grid
+            # (`ssnerf-study class-grid`); edges do not gain from it.
             class_grid_max_res=128,
-            # ... and the semantics decoder also sees sinusoids of the position (4 octaves), smooth where the hash grid
-            # is blank, so a class carries on along a surface past its labels: walkthrough seed 0, 1000 steps, test
-            # mIoU 1 labelled pixel per class per frame 0.351-0.390 -> 0.506, 4 labelled frames 0.455 -> 0.499
-            # (6 octaves: 0.504 / 0.467; CHANGELOG.md, 2026-12-06).
             class_grid_frequencies=4,
-            # Normals, shading and keypoints read the same coarse grid (each decoder an MLP of its own) and lose
-            # e_x's fine-scale speckle: single-property models, 1000 steps, the two walkthrough scenes, SN L1 0.0339
-            # -> 0.0277, SH L1 0.0416 -> 0.0336, KP F1 / AP 0.529 / 0.393 -> 0.580 / 0.471 (`ssnerf-study
-            # class-grid`, CHANGELOG.md, 2026-12-04). Edges do not gain (ED AP 0.918 -> 0.895).
             class_grid_properties=("semantics", "normals", "shading", "keypoints"),
             spare_classes=SPARE_CLASSES,
         ),

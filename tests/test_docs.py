@@ -229,12 +229,12 @@ def test_a_renamed_flag_is_caught(help_texts) -> None:
     """The check above can fail: a flag the help does not list is reported."""
     status, text = help_texts["ns-train ssnerf-lite"]
     known = set(FLAG.findall(text))
-    assert status == 0 and "--pipeline.model.balance-ratio" in known and "--pipeline.model.balance-rate" not in known
-    [tokens] = simple_commands("ns-train ssnerf-lite --data DATA --pipeline.model.balance-rate 0.1  # comment")
+    assert status == 0 and "--pipeline.model.balancing.ratio" in known and "--pipeline.model.balance-ratio" not in known
+    [tokens] = simple_commands("ns-train ssnerf-lite --data DATA --pipeline.model.balance-ratio 0.1  # comment")
     base, arguments, fault = program_of(tokens)
     assert help_key(base, arguments) == ["ns-train", "ssnerf-lite"] and not fault
     assert [argument for argument in arguments if argument.startswith("--")] == ["--data",
-                                                                                  "--pipeline.model.balance-rate"]
+                                                                                  "--pipeline.model.balance-ratio"]
     assert program_of(["ssnerf-nonexistent"])[2] and program_of(["python", "scripts/missing.py"])[2]
 
 

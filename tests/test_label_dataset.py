@@ -22,7 +22,7 @@ from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.label_makers import canny_edges
-from ssnerf_method.label_makers.keypoints import keypoint_label
+from ssnerf_method.label_makers.keypoints import keypoint_response_map
 from ssnerf_method.label_makers.makers import LabelOptions
 from ssnerf_method.label_tool.label_dataset import KEPT, LABELLED, LabelDatasetConfig, label_dataset
 from ssnerf_method.label_tool.paths import LABEL_FOLDER
@@ -92,7 +92,7 @@ def test_with_depth_derives_every_label_and_keeps_the_original(scene: Path, tmp_
         for name in DERIVED:
             assert frame[REGISTRY[name].file_key] == f"{LABEL_FOLDER}/{name}/{Path(frame['file_path']).name}"
         np.testing.assert_array_equal(read(data / frame["edges_file_path"]), canny_edges(image) * 255)
-        expected = np.round(keypoint_label(image) * 255)  # the default: SURF's response map
+        expected = np.round(keypoint_response_map(image) * 255)  # SURF's response map
         np.testing.assert_array_equal(read(data / frame["keypoints_file_path"]), expected)
         derived = read(data / frame["normals_file_path"])
         labelled = derived[..., 3] > 0 if derived.shape[-1] == 4 else np.ones(derived.shape[:2], bool)

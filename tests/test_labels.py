@@ -13,17 +13,15 @@ from ssnerf_method.data.transforms import Transforms, camera_rays, frame_camera
 from ssnerf_method.label_makers import (
     camera_ray_directions,
     canny_edges,
-    keypoint_heatmap,
     lambertian_shading,
     normals_from_depth,
     normals_from_points,
 )
 from ssnerf_method.label_makers.encoding import decode_normals
-from ssnerf_method.label_makers.keypoints import detect_keypoints, keypoint_label, keypoint_response_map
+from ssnerf_method.label_makers.keypoints import keypoint_response_map
 from ssnerf_method.label_makers.makers import FrameSources, LabelOptions, NormalsFromDepth, SemanticsCopy
 from ssnerf_method.label_makers.normals import smooth_normals
 from ssnerf_method.label_makers.segments import grow_in_segments
-from ssnerf_method.label_makers.surf import local_max_3x3x3
 
 WIDTH, HEIGHT, FOCAL = 96, 72, 80.0
 CX, CY = WIDTH / 2, HEIGHT / 2
@@ -51,22 +49,6 @@ def test_canny_marks_exactly_the_rectangle_outline() -> None:
     assert canny_edges(square_image(), 1000, 2000).sum() == 0  # thresholds above every gradient: no edges
 
 
-@pytest.mark.parametrize("detector", ["surf", "sift"])
-def test_keypoint_heatmap_peaks_on_a_blob(detector: str) -> None:
-    rows, cols = np.mgrid[0:HEIGHT, 0:WIDTH] + 0.5
-    image = 40 + 180 * np.exp(-((cols - 40.0) ** 2 + (rows - 30.0) ** 2) / (2 * 4.0**2))
-    image = np.repeat(image.astype(np.uint8)[..., None], 3, axis=-1)
-    heatmap = keypoint_heatmap(image, sigma=2.0, detector=detector)
-    # The strongest keypoint peaks at 1 at its sub-pixel position, a little less at the nearest pixel centre.
-    assert heatmap.shape == (HEIGHT, WIDTH) and 0.85 < heatmap.max() <= 1.0
-    peak_row, peak_col = np.unravel_index(np.argmax(heatmap), heatmap.shape)
-    # OpenCV pixel (row 29, col 39) is centred on the blob at image coordinates (40, 30) minus half a pixel.
-    assert abs(peak_row - 29.5) <= 1.5 and abs(peak_col - 39.5) <= 1.5
-    assert heatmap[:, :15].max() == 0 and heatmap[:, 70:].max() == 0  # zero away from the only blob
-    positions, _ = detect_keypoints(image, detector)
-    assert np.linalg.norm(positions - [39.5, 29.5], axis=1).min() <= 1.5
-
-
 def blob_image(centres, width: int = WIDTH, contrast: float = 180.0) -> np.ndarray:
     """A grey uint8 RGB image with a Gaussian blob (sigma 4 px) at each (x, y) in `centres`."""
     rows, cols = np.mgrid[0:HEIGHT, 0:width] + 0.5
@@ -78,45 +60,18 @@ def blob_image(centres, width: int = WIDTH, contrast: float = 180.0) -> np.ndarr
 
 def test_keypoint_response_map_peaks_on_the_blob_and_is_the_same_in_every_view() -> None:
     image = blob_image([(40.0, 30.0)])
-    response = keypoint_label(image)  # the default definition
+    response = keypoint_response_map(image)
     assert response.dtype == np.float32 and response.shape == (HEIGHT, WIDTH)
     peak_row, peak_col = np.unravel_index(np.argmax(response), response.shape)
     assert abs(peak_row - 29.5) <= 1.5 and abs(peak_col - 39.5) <= 1.5 and response.max() > 0.5
     assert response[:, :15].max() < 0.01 and response.min() >= 0.0 and response.max() < 1.0
     assert keypoint_response_map(np.full((HEIGHT, WIDTH, 3), 90, dtype=np.uint8)).max() == 0.0  # flat: nothing
     # A fixed curve, not a per-image normalisation: a stronger second blob elsewhere leaves the first one's values
-    # as they were, where the blob heatmap divides them by the new maximum.
+    # as they were.
     wider = blob_image([(40.0, 30.0), (120.0, 30.0)], width=160)
     wider[..., :] = np.where(np.arange(160)[None, :, None] < 80, wider, blob_image([(40.0, 30.0), (120.0, 30.0)],
                                                                                    width=160, contrast=215.0))
     assert np.array_equal(keypoint_response_map(wider)[:, 10:70], response[:, 10:70])
-    assert not np.allclose(keypoint_heatmap(wider)[:, 10:70], keypoint_heatmap(image)[:, 10:70])
-
-
-def test_keypoint_label_definitions() -> None:
-    image = blob_image([(40.0, 30.0)])
-    assert np.array_equal(keypoint_label(image, "blobs", sigma=2.0, detector="sift"),
-                          keypoint_heatmap(image, sigma=2.0, detector="sift"))
-    with pytest.raises(ValueError, match="response or blobs"):
-        keypoint_label(image, "corners")  # type: ignore[arg-type]
-
-
-def test_orb_and_flat_images() -> None:
-    assert keypoint_heatmap(np.full((HEIGHT, WIDTH, 3), 90, dtype=np.uint8)).max() == 0
-    canvas = np.full((160, 200, 3), 30, dtype=np.uint8)  # ORB ignores a 31-pixel border
-    canvas[60:100, 70:130] = 220
-    heatmap = keypoint_heatmap(canvas, detector="orb")
-    rows, cols = np.nonzero(heatmap > 0.5)
-    assert len(rows) and ((rows > 50) & (rows < 110) & (cols > 60) & (cols < 140)).all()  # on the rectangle
-    with pytest.raises(ValueError, match="surf, sift or orb"):
-        detect_keypoints(square_image(), "harris")  # type: ignore[arg-type]
-
-
-def test_separable_local_max_equals_windowed_max() -> None:
-    stack = np.random.default_rng(1).random((3, 17, 23))
-    padded = np.pad(stack, ((0, 0), (1, 1), (1, 1)))
-    windows = np.lib.stride_tricks.sliding_window_view(padded, (3, 3), axis=(1, 2))
-    np.testing.assert_array_equal(local_max_3x3x3(stack), windows.max(axis=(0, 3, 4)))
 
 
 def _angle_deg(a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -83,7 +83,7 @@ def test_a_new_regulariser_is_one_new_file(tmp_path: Path, monkeypatch) -> None:
         assert ("toy_loss" in losses) == expected
     model.zero_grad()
     losses["toy_loss"].backward()
-    assert torch.isfinite(losses["toy_loss"]) and float(losses["toy_loss"]) > 0
+    assert torch.isfinite(losses["toy_loss"]) and float(losses["toy_loss"].detach()) > 0
     assert any(p.grad is not None and p.grad.abs().max() > 0 for p in model.sampling.final_field.encoder.parameters())
 
 

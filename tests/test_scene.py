@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from ssnerf_method.data.classes import CLASS_ID, SEMANTIC_CLASSES
-from ssnerf_method.label_makers.keypoints import detect_keypoints, keypoint_response_map
+from ssnerf_method.label_makers.keypoints import keypoint_response_map
 from ssnerf_method.label_makers.normals import normals_from_depth
 from ssnerf_method.label_makers.shading import lambertian_shading
 from ssnerf_method.metrics import local_maxima
@@ -194,32 +194,6 @@ def test_keypoint_label_is_the_response_map_of_the_written_rgb(scene):
         peaks += len(local_maxima(torch.from_numpy(label / 255.0), torch.ones(label.shape, dtype=torch.bool), 0.5)[0])
     assert peaks > 0
     assert "SURF blob-response map" in meta["ssnerf_scene"]["keypoints"]
-
-
-def test_blob_keypoint_label_peaks_at_detected_keypoints(tmp_path):
-    """`--keypoint-label blobs`: SIFT keypoints as Gaussian blobs, zero far from every keypoint."""
-    make_scene(MakeSceneConfig(tmp_path / "blobs", width=WIDTH, height=HEIGHT, num_frames=3, path_frames=0,
-                               keypoint_label="blobs"))
-    root = tmp_path / "blobs"
-    meta = json.loads((root / "transforms.json").read_text())
-    total = 0
-    for frame in meta["frames"]:
-        heatmap = _read(root, frame["keypoints_file_path"]) / 255.0
-        positions, responses = detect_keypoints(_read(root, frame["file_path"]), "sift")
-        if len(responses) == 0:
-            assert heatmap.max() == 0
-            continue
-        total += len(responses)
-        cols, rows = np.round(positions).astype(int).T
-        # A blob of sigma 1.5 px keeps >= exp(-0.5 / 4.5) ~ 0.895 of its peak at the nearest pixel centre.
-        assert (heatmap[rows, cols] >= 0.89 * responses / responses.max() - 2 / 255).all()
-        assert heatmap.max() > 0.89
-        # Far (> 4 sigma) from every keypoint the heatmap is zero.
-        yy, xx = np.mgrid[:HEIGHT, :WIDTH]
-        distance = np.sqrt((xx[..., None] - positions[:, 0]) ** 2 + (yy[..., None] - positions[:, 1]) ** 2).min(-1)
-        assert (heatmap[distance > 6.5] == 0).all()
-    assert total > 0
-    assert "SIFT" in meta["ssnerf_scene"]["keypoints"]
 
 
 def test_pose_projects_known_points_onto_matching_depth(scene):

@@ -36,7 +36,7 @@ from ssnerf_method.scene.make_scene import FLY_THROUGH, MakeSceneConfig, make_sc
 
 DEMO_STEPS = {"ssnerf-lite": 700, "ssnerf": SHORT_RUN_STEPS["ssnerf"]}
 """The demo's training steps per method. On the CPU fewer than the benchmark's 1000, so that `make demo` stays within
-10 minutes end to end on 2 cores (CHANGELOG.md, 2026-12-02, gives the time and what the 300 steps more would add)."""
+10 minutes end to end on 2 cores."""
 
 
 @dataclass

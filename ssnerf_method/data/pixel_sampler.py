@@ -33,7 +33,7 @@ class LabelledPixelSamplerConfig(PixelSamplerConfig):
     _target: Type = field(default_factory=lambda: LabelledPixelSampler)
     labelled_rays_per_batch: int = 256
     """Rays of each batch drawn from the labelled pixels of a sparsely labelled property (shared between such
-    properties; at most half the batch). 64 measured no better (CHANGELOG, 2026-12-07 (later morning))."""
+    properties; at most half the batch; 64 measured no better)."""
     sparse_label_fraction: float = 0.5
     """A property whose labels cover less than this fraction of the training pixels counts as sparsely labelled."""
     smoothness_patches: int = 0

@@ -2,7 +2,7 @@
 
 nerfstudio's `AdamOptimizerConfig` builds `torch.optim.Adam` with torch's default implementation, which on a CPU is
 the per-tensor loop: about a dozen elementwise ops per parameter tensor, each a pass over memory. The fused kernel
-makes one pass per tensor (on 2 CPU cores, 20 ms against 6 ms an `ssnerf-lite` step: CHANGELOG, 2026-12-05) and
+makes one pass per tensor (on 2 CPU cores, about a third of the time per `ssnerf-lite` step, 2026-12-05) and
 computes the same update up to float rounding. Its state dict has the same keys, so checkpoints load either way.
 """
 

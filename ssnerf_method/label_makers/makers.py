@@ -16,7 +16,7 @@ import tyro
 
 from ssnerf_method.label_makers.edges import canny_edges
 from ssnerf_method.label_makers.encoding import decode_normals, encode_normals, to_uint8
-from ssnerf_method.label_makers.keypoints import Detector, KeypointLabel, describe_keypoint_label, keypoint_label
+from ssnerf_method.label_makers.keypoints import describe_keypoint_label, keypoint_response_map
 from ssnerf_method.label_makers.normals import normals_from_points, smooth_normals
 from ssnerf_method.label_makers.segments import grow_in_segments
 from ssnerf_method.label_makers.shading import shading_from_rays
@@ -37,13 +37,6 @@ class LabelOptions:
     """Canny's lower hysteresis threshold, on the 0-255 grey image's gradient magnitude."""
     canny_high: float = 200.0
     """Canny's upper hysteresis threshold: a gradient above it starts an edge."""
-    keypoint_label: KeypointLabel = "response"
-    """response: SURF's dense blob-response map (Taskonomy's keypoint2d; a field learns it); blobs: detected keypoints
-    splatted as Gaussians (fields render it empty)."""
-    keypoint_detector: Detector = "surf"
-    """With --keypoint-label blobs: surf (the paper's), sift or orb."""
-    keypoint_sigma: float = 1.5
-    """With --keypoint-label blobs: radius (Gaussian standard deviation, pixels) of each splatted keypoint."""
     normals_source: tyro.conf.Suppress[Literal["depth", "exact"]] = "depth"
     """Normal label from the depth map (the paper's), or the frame's given exact normals (a generated scene's)."""
     semantics_grow: float = 0.0
@@ -185,14 +178,13 @@ class LambertianShading(LabelMaker):
 class KeypointMap(LabelMaker):
     """A keypoint map of the image (`labels/keypoints.py`)."""
 
-    help = "Keypoint heatmap of the RGB image."
+    help = "Keypoint map of the RGB image (SURF's blob response)."
 
     def make(self, frame: FrameSources, options: LabelOptions) -> np.ndarray:
-        return to_uint8(keypoint_label(frame.rgb, options.keypoint_label, options.keypoint_sigma,
-                                       options.keypoint_detector))
+        return to_uint8(keypoint_response_map(frame.rgb))
 
     def describe(self, options: LabelOptions) -> str:
-        return describe_keypoint_label(options.keypoint_label, options.keypoint_sigma, options.keypoint_detector)
+        return describe_keypoint_label()
 
 
 class CannyEdges(LabelMaker):

@@ -26,7 +26,6 @@ from ssnerf_method.data.classes import SEMANTIC_CLASSES, SEMANTIC_COLORS
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.importers.writer import DatasetWriter, centred_pinhole
 from ssnerf_method.label_makers.encoding import to_uint8
-from ssnerf_method.label_makers.keypoints import Detector, KeypointLabel
 from ssnerf_method.label_makers.makers import FrameSources, LabelOptions
 from ssnerf_method.label_makers.shading import camera_ray_directions
 from ssnerf_method.properties import labelled_properties
@@ -38,9 +37,6 @@ HFOV_DEG = 75.0
 
 SUPERSAMPLE = 2
 """RGB is averaged over SUPERSAMPLE x SUPERSAMPLE rays per pixel."""
-
-KEYPOINT_DETECTOR: Detector = "sift"
-"""With `--keypoint-label blobs`: OpenCV's SIFT (the scenes' detector before the response map became the default)."""
 
 Trajectory = Literal["loop", "walkthrough"]
 NormalsLabel = Literal["exact", "from-depth"]
@@ -79,9 +75,6 @@ class MakeSceneConfig:
     camera-path` and the viewer's render panel); 0 writes none."""
     path_seconds: float = 5.0
     """Duration of the fly-through video."""
-    keypoint_label: KeypointLabel = "response"
-    """Keypoint label: SURF's dense blob-response map (default; a field learns it) or `blobs`, SIFT keypoints splatted
-    as Gaussians (`LabelOptions.keypoint_sigma`; the scenes' label before 2026-12; fields render it empty)."""
     overwrite: bool = False
     """Replace the scene files (transforms.json and the label folders) of a non-empty output_dir."""
     trajectory: Trajectory = "loop"
@@ -233,10 +226,9 @@ def render_view(room: Room, camera: PinholeCamera) -> RenderedView:
 
 
 def label_options(config: MakeSceneConfig) -> LabelOptions:
-    """The label makers' settings for the generated scene: their defaults (`ssnerf-label`'s), the keypoint label
-    chosen (blobs from SIFT), and the normal label from the ray caster's exact normals or from the written depth."""
+    """The label makers' settings for the generated scene: their defaults (`ssnerf-label`'s), and the normal label
+    from the ray caster's exact normals or from the written depth."""
     return LabelOptions(
-        keypoint_label=config.keypoint_label, keypoint_detector=KEYPOINT_DETECTOR,
         normals_source="exact" if config.normals == "exact" else "depth", semantics_from="the ray caster's class ids",
     )
 
