@@ -43,6 +43,6 @@ docs: $(VENV)/.docs-extras
 	$(BIN)/sphinx-build -W --keep-going -q -b html docs docs/_build/html
 
 test: env system $(VENV)/.test-extras
-	$(BIN)/ruff check ssnerf_method tests scripts
+	$(BIN)/ruff check ssnerf_method tests scripts benchmarks conftest.py
 	$(MAKE) docs
 	$(BIN)/python -m pytest -q

@@ -56,7 +56,7 @@ class BenchmarkDepthFromConfig:
     steps: int = 1000
     """Training steps of the RGB-only ssnerf-lite."""
     depth_smoothness: float = 0.1
-    """The model's `--pipeline.model.depth-smoothness-mult` (flat surfaces kept flat; 0: off, a plain RGB-only run)."""
+    """The model's `--pipeline.model.regularisers.depth-smoothness.mult` (0: off, a plain RGB-only run)."""
     depth_from_scale: float = LabelDatasetBase.depth_from_scale
     """`ssnerf-label --depth-from-scale`: resolution of the rendered depth (default: ssnerf-label's)."""
     depth_from_smoothing: float = LabelDatasetBase.depth_from_smoothing

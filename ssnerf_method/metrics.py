@@ -1,11 +1,7 @@
-"""Image metrics keyed by the name a `PropertySpec.metric` gives, defined once for one view and for a whole split.
+"""Image metrics keyed by `PropertySpec.metric`, for one view and for a whole split.
 
-A metric turns (prediction, label, mask of labelled pixels) into additive *statistics* (sums and counts: a confusion
-matrix, a sum of absolute errors, a histogram of angles) and turns statistics into named values. One view's metric
-is the summary of its own statistics; a split's is the summary of the statistics summed over its views, so every
-error is averaged over all labelled pixels of the split and mIoU comes from the split's accumulated confusion matrix
-(the paper's Table 1 numbers are split-level). PSNR and SSIM are the exception, averaged per view as is customary.
-The model prefixes names with the property (`semantics_miou`, `normals_l1`; RGB's are plain `psnr`, `ssim`).
+A metric turns (prediction, label, labelled mask) into additive statistics, summed over a split's views as the paper's
+Table 1 (errors over all its labelled pixels, mIoU from its confusion matrix), then into values; PSNR/SSIM per view.
 """
 
 from __future__ import annotations
@@ -39,8 +35,7 @@ class Metric(ABC):
     """A metric of one property, computable per view and over a split from the same additive statistics."""
 
     reported: Tuple[Tuple[str, bool], ...] = ()
-    """The values reports show, as (name, higher is better): the paper's number first (the headline of Table 1),
-    then any measure beside it."""
+    """The values reports show, as (name, higher is better): the paper's headline number first."""
     decides: Tuple[str, ...] = ()
     """Which of `reported` decide whether one method beats another (a win needs every one); empty: the headline."""
 
@@ -53,7 +48,6 @@ class Metric(ABC):
         """Named values from (summed) statistics; NaN where nothing was labelled."""
 
     def __call__(self, prediction: Tensor, label: Tensor, valid: Tensor, num_classes: int) -> Dict[str, float]:
-        """The metric of one view."""
         return self.summarize(self.statistics(prediction, label, valid, num_classes))
 
 
@@ -96,8 +90,7 @@ def class_iou(confusion: Float[Tensor, "classes classes"]) -> Float[Tensor, " cl
 
 
 def miou_from_confusion(confusion: Tensor) -> Dict[str, float]:
-    """Mean IoU over the classes present in the labels (a class absent from the ground truth is left out even if
-    predicted), and pixel accuracy. NaN when nothing is labelled."""
+    """Mean IoU over the classes present in the labels (even if others are predicted), and pixel accuracy; or NaN."""
     iou = class_iou(confusion)
     present = ~iou.isnan()
     if not present.any():
@@ -136,8 +129,7 @@ class L1Metric(Metric):
 
 
 SPARSE_THRESHOLDS = torch.arange(1, 101, dtype=torch.float64) / 100.0
-"""Thresholds t = 0.01, 0.02, ..., 1.00 at which a rendered sparse map (edges, keypoints) is cut: a pixel or peak
-scoring >= t is predicted. The split-level F1 is the best over these (ODS, as edge-detection benchmarks report)."""
+"""Thresholds 0.01 ... 1.00 cutting a sparse map (edges, keypoints); the split's F1 is the best over them (ODS)."""
 EDGE_TOLERANCE_PX = 1
 """An edge pixel matches if the other map has an edge pixel within this many pixels (8-neighbourhood)."""
 KEYPOINT_LABEL_PEAK = 0.5
@@ -149,9 +141,7 @@ KEYPOINT_TOLERANCE_PX = 3.0
 def precision_recall_summary(
     predicted: Tensor, predicted_hits: Tensor, truth: Tensor, truth_hits: Tensor
 ) -> Dict[str, float]:
-    """ODS F1 (best over the thresholds), the threshold it is reached at, and average precision (area under the
-    precision-recall curve, thresholds from high to low) from per-threshold counts summed over a split. With no
-    ground truth everything is NaN; with no prediction at a threshold its precision and F1 are 0."""
+    """ODS F1, its threshold and average precision from per-threshold counts summed over a split (NaN if no truth)."""
     if float(truth) == 0:
         return {"f1": _nan(), "f1_threshold": _nan(), "ap": _nan()}
     precision = torch.where(predicted > 0, predicted_hits / predicted.clamp_min(1), torch.zeros_like(predicted))
@@ -173,9 +163,7 @@ def dilate(mask: Bool[Tensor, "*bs h w"], radius: int) -> Bool[Tensor, "*bs h w"
 
 
 class SparseMapMetric(L1Metric):
-    """L1 plus F1 and AP of a sparse map (edges, keypoints): the subclass counts, per threshold of
-    `SPARSE_THRESHOLDS`, predictions (`predicted`), those near the truth (`predicted_hits`), true items (`truth`)
-    and those found (`truth_hits`)."""
+    """L1 plus F1 and AP of a sparse map, from per-threshold counts a subclass gives (`precision_recall_summary`)."""
 
     reported = (("l1", False), ("f1", True), ("ap", True))
     decides = ("f1", "ap")  # an empty map's L1 ties a good one's, so L1 cannot tell methods apart on sparse maps
@@ -188,11 +176,8 @@ class SparseMapMetric(L1Metric):
 
 
 class EdgeMetric(SparseMapMetric):
-    """L1 (the paper's) plus boundary F1 and average precision: the rendered map cut at each threshold is matched
-    to the label's edges (label >= 0.5) with a tolerance of `EDGE_TOLERANCE_PX`. Precision is the share of
-    predicted edge pixels near a true one, recall the share of true edge pixels near a predicted one; an empty map
-    scores 0, the label itself 1, and a map shifted by one pixel still 1. Counts add over the views, so the split's
-    F1 uses one threshold for all of them."""
+    """L1 (the paper's) plus boundary F1 and AP: the map cut at each threshold is matched to the label's edges
+    (>= 0.5) within `EDGE_TOLERANCE_PX`, so an empty map scores 0 and a one-pixel shift of the label still 1."""
 
     def statistics(
         self, prediction: Float[Tensor, "h w 1"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
@@ -226,9 +211,8 @@ def local_maxima(values: Float[Tensor, "h w"], valid: Bool[Tensor, "h w"], floor
 
 
 def match_keypoints(predicted: Tensor, scores: Tensor, truth: Tensor, tolerance: float) -> Bool[Tensor, " n"]:
-    """Greedy matching in descending score: each predicted peak takes the nearest still unmatched true keypoint
-    within `tolerance` pixels. Returns, per prediction, whether it is a hit. Because stronger peaks choose first,
-    the hits among the peaks above any threshold are those that matching only them would give."""
+    """Per prediction, whether it is a hit: in descending score each takes the nearest unmatched true keypoint within
+    `tolerance` pixels (so the hits above any threshold are those matching only them would give)."""
     hits = torch.zeros(len(predicted), dtype=torch.bool)
     if len(predicted) == 0 or len(truth) == 0:
         return hits
@@ -244,10 +228,8 @@ def match_keypoints(predicted: Tensor, scores: Tensor, truth: Tensor, tolerance:
 
 
 class KeypointMetric(SparseMapMetric):
-    """L1 (the paper's) plus keypoint F1 and average precision. True keypoints are the label's local maxima above
-    `KEYPOINT_LABEL_PEAK`; predicted keypoints the render's local maxima scoring above each threshold; a prediction
-    within `KEYPOINT_TOLERANCE_PX` of an unmatched true keypoint is a hit. An empty map scores 0 and the label itself
-    1, which its L1 cannot tell apart on a map that is mostly zero."""
+    """L1 (the paper's) plus keypoint F1 and AP over the local maxima of label and render (`match_keypoints`): they
+    tell an empty map (0) from the label (1), which L1 cannot on a mostly zero map."""
 
     def statistics(
         self, prediction: Float[Tensor, "h w 1"], label: Float[Tensor, "h w 1"], valid: Tensor, num_classes: int
@@ -268,9 +250,7 @@ class KeypointMetric(SparseMapMetric):
 
 
 class NormalMetric(L1Metric):
-    """L1 on the (n+1)/2 encoding (as the paper reports) plus angular errors in degrees: mean, median and the share
-    of pixels within 11.25, 22.5 and 30 degrees. Pixels where the prediction or the label is a zero vector (no
-    direction) count for L1 but not for the angles."""
+    """L1 on the (n+1)/2 encoding (the paper's) plus angular errors in degrees; zero vectors count for L1 only."""
 
     def statistics(
         self, prediction: Float[Tensor, "h w 3"], label: Float[Tensor, "h w 3"], valid: Tensor, num_classes: int
@@ -305,10 +285,7 @@ class NormalMetric(L1Metric):
 
 
 def histogram_median(histogram: Tensor) -> float:
-    """The value below which half of the binned values lie (`ANGLE_BIN_DEG`-wide bins from 0, linear within a bin).
-
-    Exact to a bin for any count; for an even count it is the lower of the two middle values, not their mean.
-    """
+    """The median of values binned `ANGLE_BIN_DEG` wide from 0 (linear within a bin; the lower middle if even)."""
     cumulative = torch.cumsum(histogram, 0)
     half = float(cumulative[-1]) / 2.0
     index = int(torch.searchsorted(cumulative, torch.tensor(half, dtype=cumulative.dtype)))
@@ -346,13 +323,11 @@ def add_statistics(total: Statistics, more: Statistics) -> Statistics:
 
 
 DEPTH_METRIC = "depth"
-"""Metric (and metric-name prefix) of rendered depth against the data's depth maps; depth is scored, and trained only
-with the model's `depth_loss_mult` above 0."""
+"""Metric (and name prefix) of rendered depth against the data's depth maps."""
 
 
 def summarize(statistics: Dict[str, Statistics], specs: Sequence[PropertySpec]) -> Dict[str, float]:
-    """Named metrics (`psnr`, `semantics_miou`, `normals_angle_mean_deg`, `depth_l1`, ...) from per-property
-    statistics of one view or summed over a split; `specs` give each property's metric and name prefix."""
+    """Named metrics (`psnr`, `semantics_miou`, `depth_l1`, ...) from per-property statistics of a view or split."""
     by_name = {spec.name: spec for spec in specs}
     metrics: Dict[str, float] = {}
     for name, values in statistics.items():

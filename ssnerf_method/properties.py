@@ -1,9 +1,7 @@
 """The property registry: the one place that says what each rendered scene property is.
 
-Every other module (field heads, renderers, losses, metrics, data loading, viewer) reads a `PropertySpec` from
-`REGISTRY` instead of naming properties itself. A property is a `kind` (how its values are stored on disk, activated
-per sample, volume-rendered, checked for validity and shown) plus the paper's choices for it: decoder branch, loss,
-weight and metric. Adding a property (e.g. depth) means one new entry here plus its label file in the dataset.
+Every other module reads a `PropertySpec` from `REGISTRY` instead of naming properties itself: a `kind` (storage,
+activation, rendering, validity, display) plus the paper's branch, loss, weight and metric. A new property is one entry.
 """
 
 from __future__ import annotations
@@ -44,13 +42,11 @@ LossName = Literal["mse", "l1", "cross_entropy"]
 NORMAL_LENGTH_TOLERANCE = 0.1
 """A labelled normal is a unit vector when its decoded length is within this of 1 (8-bit rounding moves it < 0.01)."""
 MAX_NON_UNIT_FRACTION = 0.05
-"""A normals label with more labelled pixels off unit length than this is not a normals map (anti-aliased edges and
-resizing shorten a few)."""
+"""Largest share of a normals label's pixels off unit length (anti-aliased edges and resizing shorten a few)."""
 
 
 UNNAMED_LOGIT = -1e4
-"""Rendered logit of a spare class slot without a name (the model's `spare_classes`): it is never the most likely
-class (finite, so that a softmax stays defined) and counts for nothing in `class_uncertainty`."""
+"""Rendered logit of an unnamed spare class slot: never the argmax, finite so a softmax stays defined."""
 
 
 class LabelFileError(UserError, ValueError):
@@ -85,12 +81,7 @@ def _read_image(path: Path) -> np.ndarray:
 def _read_uint8(
     path: Path, width: int, height: int, channels: int, content: str, alpha: bool = False
 ) -> Tuple[np.ndarray, np.ndarray]:
-    """Read an 8-bit label PNG, check its size against the frame's camera and its channel count.
-
-    Returns the (H, W) or (H, W, channels) values and an (H, W) mask of labelled pixels. With `alpha`, the PNG may
-    carry one extra alpha channel (grey+alpha, RGBA) whose 0 marks unlabelled pixels (e.g. normals where depth was
-    invalid); without one, every pixel is labelled.
-    """
+    """An 8-bit label PNG's values checked against the camera, and its labelled mask (with `alpha`: alpha > 0)."""
     array = _read_image(path)
     if array.shape[:2] != (height, width):
         raise LabelFileError(
@@ -171,8 +162,7 @@ class PropertyKind(ABC):
         return torch.nan_to_num(label, nan=0.0)
 
     def encode(self, prediction: Float[Tensor, "height width channels"]) -> np.ndarray:
-        """A rendered prediction as this kind's label file content (what `read` reads back): 8-bit values/255,
-        (H, W) for one channel, (H, W, 3) for three."""
+        """A prediction as this kind's label file content (what `read` reads back): uint8 (H, W) or (H, W, 3)."""
         values = torch.nan_to_num(prediction.detach().float(), nan=0.0).clamp(0.0, 1.0).cpu().numpy()
         encoded = np.round(values * 255.0).astype(np.uint8)
         return encoded[..., 0] if encoded.shape[-1] == 1 else encoded
@@ -180,25 +170,21 @@ class PropertyKind(ABC):
     def reframe(
         self, label: Float[Tensor, "*bs channels"], rotation: Float[Tensor, "3 3"]
     ) -> Float[Tensor, "*bs channels"]:
-        """A label moved to another camera whose frame is `rotation` @ this one's (labels warped between views).
-        Most properties are not vectors in the camera frame and stay as they are."""
+        """A label moved to a camera whose frame is `rotation` @ this one's; unchanged unless camera-frame vectors."""
         return label
 
     def export_outputs(
         self, name: str, prediction: Float[Tensor, "*bs channels"], context: RenderContext
     ) -> Dict[str, Tensor]:
-        """Extra per-ray outputs in the conventions of nerfstudio's exporters (`ns-export`); none by default. Rendered
-        in eval mode only (the viewer, `ns-render` and the exporters render so): no training step computes them."""
+        """Extra per-ray outputs for nerfstudio's exporters (`ns-export`), rendered in eval mode only; none here."""
         return {}
 
     def display_extras(self, name: str) -> List[str]:
-        """Outputs of this property that people look at besides `name` (the viewer's output list, `ns-render`'s
-        names), among `export_outputs`' keys; none by default."""
+        """Keys of `export_outputs` to show besides `name` (viewer, `ns-render`); none by default."""
         return []
 
     def point_values(self, name: str, outputs: Dict[str, Tensor]) -> Dict[str, Tensor]:
-        """Per-ray values this property gives each point of a labelled point cloud, by PLY property name: its
-        rendered prediction, one float per channel (`name`, or `name_0`, `name_1`, ...)."""
+        """Per-ray values for a point cloud, by PLY property name: one float per channel (`name` or `name_0`, ...)."""
         prediction = outputs[name + self.prediction_suffix].float()
         if prediction.shape[-1] == 1:
             return {name: prediction[..., 0]}
@@ -233,8 +219,7 @@ class ColorKind(PropertyKind):
 
 
 def class_uncertainty(logits: Float[Tensor, "*bs classes"]) -> Float[Tensor, "*bs 1"]:
-    """The entropy of the class probabilities over its largest possible value (the log of the number of named
-    classes: slots at `UNNAMED_LOGIT` are left out), in [0, 1]: 0 for one certain class, 1 for all equally likely."""
+    """Class entropy over its maximum (named classes only, not `UNNAMED_LOGIT`): 0 certain, 1 all equally likely."""
     logits = logits.float()
     named = (logits > UNNAMED_LOGIT / 2).sum(dim=-1, keepdim=True).clamp(min=2)
     log_probabilities = torch.log_softmax(logits, dim=-1)
@@ -285,8 +270,7 @@ class ClassKind(PropertyKind):
     def export_outputs(
         self, name: str, prediction: Float[Tensor, "*bs channels"], context: RenderContext
     ) -> Dict[str, Tensor]:
-        """`<name>_uncertainty` (`class_uncertainty`): high where no label has settled the class, on surfaces no
-        labelled frame sees and at class boundaries, so it shows where a stroke in the viewer helps most."""
+        """`<name>_uncertainty` (`class_uncertainty`): high where no label settled the class (strokes help there)."""
         return {f"{name}_uncertainty": class_uncertainty(prediction)}
 
     def display_extras(self, name: str) -> List[str]:
@@ -300,12 +284,8 @@ class ClassKind(PropertyKind):
 
 
 class NormalKind(PropertyKind):
-    """Surface normals, compared and shown in the camera frame as the (n+1)/2 encoding.
-
-    `world` mode (default): the field predicts world-frame vectors, they are volume-rendered, normalised and rotated
-    into each ray's camera frame. `pose` mode (the paper's): the decoder is conditioned on the encoded camera pose and
-    predicts the camera-frame encoding directly (sigmoid per sample).
-    """
+    """Surface normals in the camera frame as (n+1)/2: `world` mode (default) renders world vectors and rotates them
+    per ray; `pose` mode (the paper's) has a pose-conditioned decoder predict the camera-frame encoding (sigmoid)."""
 
     def __init__(self, mode: Literal["world", "pose"] = "world") -> None:
         self.mode = mode
@@ -335,8 +315,7 @@ class NormalKind(PropertyKind):
     def export_outputs(
         self, name: str, prediction: Float[Tensor, "*bs channels"], context: RenderContext
     ) -> Dict[str, Tensor]:
-        """`<name>_world`: the world-frame unit normal as (n+1)/2 in [0, 1], what `ns-export --normal-output-name`
-        takes (the camera-frame prediction rotated back by each ray's camera-to-world rotation)."""
+        """`<name>_world`: the world-frame unit normal as (n+1)/2, what `ns-export --normal-output-name` takes."""
         normals = decode_normals(prediction)
         if context.world_to_camera is not None:
             normals = torch.einsum("...ji,...j->...i", context.world_to_camera, normals)
@@ -373,10 +352,7 @@ class NormalKind(PropertyKind):
 
 
 class ScalarKind(PropertyKind):
-    """A one-channel map in [0, 1] (shading, keypoint heatmap, edges) stored as an 8-bit grey PNG, value/255.
-
-    The rendered value lives under `<name>_value`; the output named after the property is its colour-mapped image.
-    """
+    """A [0, 1] map (shading, keypoints, edges) as an 8-bit grey PNG, value/255; rendered under `<name>_value`."""
 
     prediction_suffix = "_value"
 
@@ -433,8 +409,7 @@ class PropertySpec:
         return self.name + self.kind.prediction_suffix
 
     def display(self, prediction: Tensor, palette: Optional[Tensor] = None) -> Float[Tensor, "*bs 3"]:
-        """The image people see (viewer, `ns-render`, figures): the kind's display, and for a one-channel map its
-        values in the fixed range [0, 1] through `colormap` (never normalised per frame, so frames compare)."""
+        """The image people see; a one-channel map goes through `colormap` over a fixed [0, 1] so frames compare."""
         shown = self.kind.display(prediction, palette)
         if shown.shape[-1] != 1:
             return shown

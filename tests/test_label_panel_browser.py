@@ -47,7 +47,7 @@ QUICK_MODEL = ("--pipeline.model.grid-levels", "4", "--pipeline.model.grid-max-r
                "--pipeline.model.grid-log2-hashmap-size", "14", "--pipeline.model.grid-hidden-dim", "32",
                "--pipeline.model.decoder-width", "32", "--pipeline.model.num-proposal-samples", "24",
                "--pipeline.model.num-field-samples", "16", "--pipeline.model.proposal-max-res", "64",
-               "--pipeline.datamanager.train-num-rays-per-batch", "256", "--pipeline.model.compile-fields", "False")
+               "--pipeline.datamanager.train-num-rays-per-batch", "256", "--pipeline.model.compile.enabled", "False")
 """The benchmark's --quick model sizes, as ns-train flags; eager (its 100000-step run would compile at step 0)."""
 
 

@@ -16,7 +16,4 @@ def entrypoint() -> None:
 
 
 if __name__ == "__main__":
-    # through the importable module: Ray sends its jobs' functions by reference, and `__main__`'s would go by value
-    from ssnerf_method.cli import benchmark
-
-    benchmark.entrypoint()
+    entrypoint()

@@ -1,9 +1,7 @@
 """Reading user images and writing datasets without ever leaving a half-written file or folder behind.
 
-The dataset tools (`ssnerf-label`, `ssnerf-import`) read images through `read_image`, which turns every failure into
-one `DatasetInputError` naming the file and the fix, and write through a `Staging` area: files go to a temporary
-folder next to their destination and are moved into place only once everything has been produced, and JSON is
-written to a temporary file and renamed. An error midway leaves the user's folder exactly as it was.
+`read_image` turns every failure into one `DatasetInputError` naming the file and the fix; writes go through
+`Staging` or `StagedOutputFolder` and atomic JSON, so an error midway leaves the user's folder as it was.
 """
 
 from __future__ import annotations
@@ -36,10 +34,7 @@ def _missing(path: Path, what: str) -> DatasetInputError:
 
 
 def read_image(path: Path, what: str = "image") -> np.ndarray:
-    """An image file as stored: (H, W) or (H, W, C) in RGB(A) channel order, uint8 or uint16.
-
-    Raises `DatasetInputError` naming `path` when it is missing or cannot be decoded.
-    """
+    """An image file as stored: (H, W) or (H, W, C) RGB(A), uint8 or uint16; `DatasetInputError` if unreadable."""
     if not path.is_file():
         raise _missing(path, what)
     image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
@@ -99,12 +94,8 @@ def backup_once(path: Path) -> Path:
 
 
 class Staging:
-    """Files written under `root` only when the whole job succeeded.
-
-    `stage(relative)` gives the path to write a file to (inside a hidden temporary folder under `root`); `commit()`
-    moves every staged file to `root / relative`, replacing what was there. Leaving the `with` block by an exception,
-    or without `commit()`, deletes the temporary folder and touches nothing else.
-    """
+    """Files written under `root` only when the whole job succeeded: `stage(relative)` gives a path in a hidden
+    temporary folder, `commit()` moves them all into place; leaving the `with` block otherwise touches nothing."""
 
     def __init__(self, root: Path) -> None:
         self.root = root
@@ -143,13 +134,8 @@ class Staging:
 
 
 class StagedOutputFolder:
-    """A new folder next to `destination`, to fill inside a `with` block; it becomes `destination` only on success.
-
-    `destination` must be missing or an empty folder unless `overwrite`. Leaving the block normally renames the
-    temporary folder to `destination` (an overwritten folder is moved aside first and deleted only after the rename);
-    leaving it by an exception removes the temporary folder and any missing parent folders this created, so
-    `destination` is exactly as it was.
-    """
+    """A new folder next to `destination` (missing or empty unless `overwrite`), renamed to it only on success (an
+    old one moved aside until then); on an exception it and any parents it created are removed."""
 
     def __init__(self, destination: Path, overwrite: bool = False) -> None:
         self.destination = destination

@@ -1,10 +1,7 @@
 """A pixel sampler that gives sparse labels their share of every batch.
 
-A label on a few frames, or on a few pixels per frame (Semantic-NeRF's sparse setting), is almost never hit by
-uniformly sampled rays: with one labelled pixel per class per frame, a 1024-ray batch holds a labelled pixel every
-few steps. When a property's labels cover less than `sparse_label_fraction` of the training pixels, this sampler
-replaces `labelled_rays_per_batch` of each batch's uniform rays by pixels drawn from its labelled ones (all their
-labels come along, RGB included). Densely labelled data is sampled exactly as nerfstudio's `PixelSampler` does.
+Uniform rays almost never hit labels on a few pixels or frames. Below `sparse_label_fraction` coverage, a property's
+labelled pixels replace `labelled_rays_per_batch` uniform rays; dense data is sampled as nerfstudio's `PixelSampler`.
 """
 
 from __future__ import annotations
@@ -32,20 +29,15 @@ class LabelledPixelSamplerConfig(PixelSamplerConfig):
 
     _target: Type = field(default_factory=lambda: LabelledPixelSampler)
     labelled_rays_per_batch: int = 256
-    """Rays of each batch drawn from the labelled pixels of a sparsely labelled property (shared between such
-    properties; at most half the batch; 64 measured no better)."""
+    """Rays per batch drawn from sparsely labelled properties' labelled pixels (shared; at most half the batch)."""
     sparse_label_fraction: float = 0.5
     """A property whose labels cover less than this fraction of the training pixels counts as sparsely labelled."""
     smoothness_patches: int = 0
-    """Rays of each batch drawn as this many 3x3 pixel patches (first in the batch, 9 rays each, in place of uniform
-    rays), on which the model's `depth_smoothness_mult` loss keeps flat surfaces flat and its
-    `semantic_affinity_mult` spreads sparse class labels (the pipeline sets it from the model's `pixel_patches` when
-    either is on). 0: none."""
+    """3x3 pixel patches opening each batch (9 rays each, replacing uniform rays) for the depth smoothness and
+    semantic affinity losses (set by the pipeline from the model's `pixel_patches`); 0: none."""
     patches_while_class_sparse: bool = False
-    """Draw the patches only while the class property's labels are sparse (`sparse_label_fraction`), and only in
-    images that hold some of them but leave pixels unlabelled: what the semantic affinity alone needs (it spreads a
-    frame's labels over the rest of that frame), so that data labelled frame by frame, all of some frames or every
-    frame, is sampled as without it."""
+    """Draw patches only while class labels are sparse, in images partly labelled: all the semantic affinity alone
+    needs (it spreads a frame's labels over that frame), so fully labelled frames are sampled as without it."""
     smoothness_patch_stride: int = 4
     """Pixels between neighbouring rays of a patch: a wider patch smooths the depth over a longer span."""
 
@@ -64,13 +56,11 @@ class LabelledPixelSampler(PixelSampler):
         return self._labelled(image_batch)[0]
 
     def partly_labelled_frames(self, image_batch: Dict) -> Int[Tensor, " frames"]:
-        """Indices into the batch of the images that hold some class labels but not on every pixel (that a mask
-        keeps), while the class labels are sparse; none while they are not."""
+        """Batch indices of the images partly class-labelled (within their mask), while class labels are sparse."""
         return self._labelled(image_batch)[1]
 
     def _labelled(self, image_batch: Dict) -> Tuple[Dict[str, Tensor], Tensor]:
-        """`sparse_pixels` and `partly_labelled_frames`, computed once for a cached batch of images (nerfstudio
-        hands the same batch every step when all images fit)."""
+        """`sparse_pixels` and `partly_labelled_frames`, once per cached batch (nerfstudio reuses it every step)."""
         images = image_batch["image"]
         key = (id(images), tuple(images.shape))
         if self._cache is not None and self._cache[:2] == key:
@@ -111,9 +101,8 @@ class LabelledPixelSampler(PixelSampler):
         return prepend(self.patch_rays(image_batch, patches, frames), batch)
 
     def patch_rays(self, image_batch: Dict, patches: int, frames: Optional[Int[Tensor, " frames"]] = None) -> Dict:
-        """Up to `patches` 3x3 pixel patches (rows of 9 rays, row-major), `smoothness_patch_stride` pixels apart, at
-        random places of random images (of `frames`, indices into the batch, if given), none touching a pixel the
-        image's mask excludes; the batch records their number under `SMOOTHNESS_PATCHES_KEY`."""
+        """Up to `patches` random 3x3 patches (rows of 9 rays) of images (of `frames` if given) clear of masked pixels;
+        their number goes under `SMOOTHNESS_PATCHES_KEY`."""
         images = image_batch["image"]
         count, height, width = images.shape[:3]
         stride = max(1, min(self.config.smoothness_patch_stride, (min(height, width) - 1) // 2))
@@ -152,8 +141,7 @@ class LabelledPixelSampler(PixelSampler):
 def pixels_at(
     image_batch: Dict, index: Int[Tensor, " rays"], rows: Int[Tensor, " rays"], columns: Int[Tensor, " rays"]
 ) -> Dict[str, Tensor]:
-    """Every per-pixel value of the cached images at (image in batch, row, column), and their `indices` (camera,
-    row, column) as nerfstudio's sampler gives them."""
+    """Every per-pixel value of the cached images at (image, row, column), with nerfstudio's `indices`."""
     pixels = {key: value[index, rows, columns] for key, value in image_batch.items()
               if key != "image_idx" and isinstance(value, Tensor)}
     pixels["indices"] = torch.stack([image_batch["image_idx"][index.cpu()].to(rows), rows, columns], dim=-1)

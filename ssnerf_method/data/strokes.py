@@ -1,13 +1,8 @@
 """Strokes painted in the viewer: labelled rays (origin, direction, class) kept in `DATA/ssnerf_labels/strokes.json`.
 
-A stroke is what one click (a brush disc) or one drag (a box) painted from one viewer camera: a ray per painted pixel
-and one class, named (not numbered), so that the file stays right when the dataset's class list grows. Rays are
-stored in the dataset's own world frame (the poses of transforms.json), not in nerfstudio's oriented and scaled one,
-which depends on the dataparser's settings; `WorldFrame` converts between the two.
-
-Every change rewrites the whole file through `atomic.atomic_file` (a temporary file, fsynced, renamed into place),
-so a crash (a killed `ns-train`) keeps every stroke made before it, and a half-written file never replaces a good one.
-The file is small: a stroke keeps one direction per painted pixel.
+A stroke (a click's disc, a drag's box) is a ray per painted pixel and a class by name, so it survives a growing class
+list. Rays are in transforms.json's world frame, which unlike nerfstudio's does not depend on dataparser settings
+(`WorldFrame` converts). Each change rewrites the file atomically, so a crash loses no earlier stroke.
 """
 
 from __future__ import annotations
@@ -120,8 +115,7 @@ class LabelledRays:
 
 
 class StrokeStore:
-    """The strokes of one dataset: loaded from, and written through to, its strokes file. Thread-safe (the viewer
-    adds strokes from its own thread while training reads them)."""
+    """One dataset's strokes, written through to its file; thread-safe (the viewer adds while training reads)."""
 
     def __init__(self, path: Path, strokes: Sequence[Stroke] = (), classes: Sequence[str] = ()) -> None:
         self.path = path
@@ -150,8 +144,7 @@ class StrokeStore:
 
     @classmethod
     def load(cls, path: Path) -> "StrokeStore":
-        """Read a strokes file (an empty store when there is none); one `DatasetInputError` naming the file when it
-        does not parse."""
+        """Read a strokes file (empty store if none); a `DatasetInputError` naming the file if it does not parse."""
         if not path.exists():
             return cls(path)
         fix = "Fix the file or delete it (it holds only the strokes painted in the viewer; nothing else reads it)."
@@ -218,8 +211,7 @@ class StrokeStore:
         self.version += 1
 
     def labelled_rays(self, frame: WorldFrame, class_ids: Dict[str, int]) -> Optional[LabelledRays]:
-        """Every stroke's rays in a run's world frame (None when there are none). Strokes whose class has no id
-        (`class_ids`) are left out."""
+        """Every stroke's rays in a run's world frame, strokes of classes without an id left out; None if none."""
         strokes = [stroke for stroke in self.strokes if stroke.class_name in class_ids]
         if not strokes:
             return None

@@ -1,15 +1,8 @@
 """One check of a dataset against the SS-NeRF dataset format (docs/dataset-format.md) before anything is built on it.
 
-`validate_dataset` reports every fault it finds in one pass, each as one line that names the file (or the frame of
-transforms.json and its key) and says what to do: the JSON and its keys, the camera model and its parameters, every
-pose a finite 4x4 matrix, every listed file present, a file and not a folder, decodable, of its camera's size and of
-the right mode. Images are checked from their headers; the pixels are read only where a fault cannot be seen
-otherwise (depth that is zero everywhere, and the labels, which each kind of the registry reads and checks as
-training will: class ids in range, normals of unit length). The files are checked on a few threads.
-
-`ssnerf-check` and `ssnerf-label` run it in full. The dataparser (so `ns-train`, `ns-eval`, `ns-render`) reads headers
-only by default: reading every label's pixels costs as much as loading them for training (docs/dataset-format.md,
-"Checking a dataset"), so there they are checked once, as the dataset decodes them, before the first training step.
+`validate_dataset` reports every fault in one pass, one line each naming the file (or frame and key) and the fix.
+Images are checked from their headers; pixels only for depth and labels (as training reads them). `ssnerf-check` and
+`ssnerf-label` check everything; the dataparser only headers, since training checks pixels as it loads them.
 """
 
 from __future__ import annotations
@@ -80,8 +73,7 @@ def transforms_file(data: Path) -> Path:
 
 
 def missing_data_fix() -> str:
-    """How to point the running command at a dataset that is not where its path says: `--data` for `ns-train`; for a
-    command that loads a trained run (`ns-eval`, `ns-viewer` have no --data), the `data:` of the run's config.yml."""
+    """How to point the running command at a missing dataset: `--data`, or a trained run's config.yml `data:`."""
     edit = ("set `data:` under `pipeline:` -> `datamanager:` in the run's config.yml (the --load-config file) to the "
             "dataset's folder, e.g. `data: /new/place/scene`")
     program = Path(sys.argv[0]).name if sys.argv and sys.argv[0] else ""
@@ -141,8 +133,7 @@ def validate_transforms(
     workers: int = 4,
     skip_labels: Collection[str] = (),
 ) -> Validation:
-    """Check parsed transforms `meta` (read from `path`, files relative to `folder`); labels in `skip_labels` are not
-    checked (`ssnerf-label` is about to replace them)."""
+    """Check parsed transforms `meta` (files relative to `folder`), except labels `ssnerf-label` will replace."""
     validation = Validation(path)
     faults = validation.faults
     if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
@@ -248,7 +239,6 @@ def _unknown_model(where: str, model: object) -> str:
 
 
 def _number(value: object) -> Optional[float]:
-    """`value` as a finite float, or None when it is not one."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         return None
     return float(value) if math.isfinite(value) else None
@@ -377,8 +367,7 @@ def _check_image(path: Path, size: Optional[Tuple[int, int]]) -> Optional[str]:
 
 
 def _check_depth(path: Path, size: Optional[Tuple[int, int]], contents: bool) -> Optional[str]:
-    """A depth file nerfstudio can read: a single-channel 16/32-bit image or a .npy, of its image's aspect ratio,
-    not zero everywhere."""
+    """A depth file nerfstudio can read (16/32-bit single-channel image or .npy), of its image's aspect, not all 0."""
     if (fault := _not_a_file(path, "depth map", "depth_file_path")) is not None:
         return fault
     if path.suffix == ".npy":

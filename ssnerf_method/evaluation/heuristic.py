@@ -1,14 +1,7 @@
 """The paper's Heuristic baseline: a test view's labels forward-projected from the nearest training views.
 
-For a test camera, training views are ranked by pose distance (`pose_distance`). The nearest one's pixels are lifted
-to 3D with its depth map, moved into the test camera and splatted with a z-buffer (each source pixel lands on the
-pixel containing its projection; the closest point wins). Test pixels still empty are filled from the next-nearest
-views in turn, then from the nearest filled pixel. Labels that are vectors in the camera frame (normals) are rotated
-into the test camera (`PropertyKind.reframe`); class ids are copied, never blended.
-
-The depth of a training view comes from a `DepthSource`: by default the dataset's depth maps (`dataset_depth`); any
-other estimate can stand in, such as the depth an RGB NeRF renders there (what `ssnerf-benchmark` uses for data
-without depth maps).
+The nearest views (`pose_distance`), lifted to 3D with a `DepthSource`, are z-buffer splatted into the test camera in
+turn; holes take the nearest filled pixel. Normals are rotated (`PropertyKind.reframe`); class ids never blended.
 """
 
 from __future__ import annotations
@@ -70,8 +63,7 @@ class PinholeView:
         return np.stack([x, y, -z], axis=-1) @ self.rotation.T + self.centre, np.flatnonzero(valid.reshape(-1))
 
     def project(self, points: Float[np.ndarray, "n 3"]) -> Tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Pixel column and row containing each world point, its z-depth in this camera, and whether it lands
-        inside the image in front of the camera."""
+        """Pixel column, row and z-depth of each world point, and whether it lands in the image in front."""
         camera = (points - self.centre) @ self.rotation
         z = -camera[:, 2]
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -83,8 +75,7 @@ class PinholeView:
     def sees(
         self, points: Float[np.ndarray, "n 3"], depth: Float[np.ndarray, "h w"], tolerance: float = 0.02
     ) -> np.ndarray:
-        """Whether this camera sees each world point: inside the image, and its depth there within `tolerance`
-        (relative) of the point's (not hidden behind a nearer surface)."""
+        """Whether each world point is in the image and not hidden (depth there within relative `tolerance`)."""
         column, row, z, inside = self.project(points)
         seen = np.zeros(len(points), dtype=bool)
         there = depth[row[inside].astype(np.int64), column[inside].astype(np.int64)]
@@ -103,9 +94,7 @@ def nearest_view_copy(
     train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, angle_weight: float = ANGLE_WEIGHT,
     sources: Optional[Sequence[int]] = None,
 ) -> Callable[[Cameras, int], Dict[str, Tensor]]:
-    """A predictor that copies the labels (RGB included) of the training view nearest to each camera, ranked as the
-    Heuristic ranks its sources, with no warp: the floor every method should beat (the demo's "nearest training
-    view" row). `sources`: the training views it may copy (default: all; e.g. only the labelled ones)."""
+    """A predictor copying the nearest training view's labels (of `sources`, default all) unwarped: the floor."""
     views = {index: PinholeView.from_cameras(train.cameras, index)
              for index in (range(len(train)) if sources is None else sources)}
 
@@ -121,11 +110,8 @@ def nearest_view_copy(
 def splat(
     source: PinholeView, depth: Float[np.ndarray, "h w"], target: PinholeView
 ) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Where each source pixel lands in the target view, z-buffered.
-
-    Returns, for every target pixel that received a point, its flat index, the flat index of the source pixel that
-    won it (the nearest to the target camera) and that point's z-depth in the target camera.
-    """
+    """Z-buffered splat: for each target pixel hit, its flat index, the winning (nearest) source pixel's flat index
+    and that point's z-depth in the target camera."""
     points, pixels = source.unproject(depth)
     column, row, z_target, inside = target.project(points)
     target_index = (row[inside] * target.width + column[inside]).astype(np.int64)
@@ -163,10 +149,8 @@ def dataset_depth(train: SSNeRFDataset, dataparser_scale: float) -> DepthSource:
 
 
 class NearestLabelledPoint:
-    """The class property `spec` by nearness in space: every pixel of a view (lifted to 3D with its depth) takes the
-    class of the nearest labelled pixel of the training views `sources` (lifted with `source_depth`). How far labels
-    carry by nearness alone: the baseline for sparse labels (clicks, strokes), of which the Heuristic's splat leaves
-    the test views nearly empty. The labelled points are lifted once; `predictor` scores any split's views."""
+    """Each pixel (lifted to 3D) takes the class of the nearest labelled 3D point of `sources`: the baseline for
+    sparse labels (clicks, strokes), which the Heuristic's splat leaves nearly empty."""
 
     def __init__(self, train: SSNeRFDataset, spec: PropertySpec, num_classes: int, source_depth: DepthSource,
                  sources: Sequence[int]) -> None:
@@ -184,8 +168,7 @@ class NearestLabelledPoint:
     def predictor(
         self, target_depth: Callable[[Cameras, int], Float[np.ndarray, "h w"]]
     ) -> Callable[[Cameras, int], Dict[str, Tensor]]:
-        """A `scoring.Predictor` lifting each view's pixels with `target_depth`. Pixels without a depth take the
-        nearest pixel's class that has one; with no labelled pixel at all, every pixel is unlabelled."""
+        """A `scoring.Predictor` lifting pixels with `target_depth`; depthless pixels take the nearest one's class."""
         spec, num_classes = self.spec, self.num_classes
 
         def predict(cameras: Cameras, index: int) -> Dict[str, Tensor]:
@@ -217,8 +200,7 @@ class HeuristicBaselineConfig:
 
 
 class HeuristicBaseline:
-    """Labels of test views forward-projected from the training views' labels with their depth (`depth`; default: the
-    dataset's depth maps)."""
+    """Test views' labels forward-projected from the training views' with their `depth` (default: the dataset's)."""
 
     def __init__(
         self, train: SSNeRFDataset, specs: Sequence[PropertySpec], num_classes: int, dataparser_scale: float,
@@ -243,7 +225,6 @@ class HeuristicBaseline:
         return self._depths[index]
 
     def item(self, index: int) -> Dict[str, Tensor]:
-        """A training view's image, labels and depth (read once)."""
         if index not in self._items:
             self._items[index] = self.train[index]
         return self._items[index]

@@ -1,6 +1,4 @@
-"""Where the SS-NeRF pipeline lived before it moved to `ssnerf_method/pipelines/ssnerf_pipeline.py`: the config.yml
-of every run trained before then names `ssnerf_method.evaluation.pipeline.SSNeRFPipelineConfig`, and `ns-eval`,
-`ns-render` and `ns-viewer` load those runs through this name."""
+"""The SS-NeRF pipeline's old home: config.yml files of runs trained before it moved to `pipelines/` name it here."""
 
 from ssnerf_method.pipelines.ssnerf_pipeline import SSNeRFPipeline, SSNeRFPipelineConfig, TrainingDiverged
 

@@ -1,16 +1,9 @@
 """`ssnerf-study augmentation`: SS-NeRF's renders as training data for a task network (the paper's Table 6).
 
-Per property, a task network (the Hybrid baseline's encoder-decoder, `evaluation/hybrid.py`) maps RGB to the property.
-It is trained under four data settings, on the training views of all scenes together, as the paper pools its scenes:
-
-- GT: the real training images and their ground-truth labels;
-- SS-NeRF: the single-property SS-NeRF's renders (RGB and the property) at the training poses;
-- GT + SS-NeRF: both;
-- GT + SS-NeRF-N: the real data and renders at novel poses, each the average of two adjacent training poses.
-
-The renders are written by `ssnerf-export-dataset` (`OUTPUT/augmentation/renders/<scene>/<property>-<poses>/`), so
-they can be inspected and reused. Every network gets the same number of steps, so the settings differ in data only.
-It is scored on each scene's held-out test views: real RGB in, ground truth as the reference.
+Per property, a task network (the Hybrid baseline's encoder-decoder) maps RGB to the property, trained on all scenes'
+training views pooled (as the paper does) under four data settings: GT (real images and labels), SS-NeRF (renders at
+the training poses), GT + SS-NeRF (both) and GT + SS-NeRF-N (real data and renders at poses between adjacent training
+poses). Every network gets the same steps, so the settings differ in data only; each is scored on the test views.
 """
 
 from __future__ import annotations

@@ -1,10 +1,8 @@
 """`ssnerf-study autolabel`: how far SS-NeRF cleans weak labels (the paper's auto-labelling use, Fig. 4, measured).
 
-No pre-trained annotator can be had here, so weak labels are the clean labels corrupted per view
-(`labels/corruptions.py`, the registry's `corruption` of the property). For each scene and rate it writes the weak
-copy of the scene (`OUTPUT/weak/<scene>-<property>-<rate>/`, every frame's label of that property corrupted), trains
-the single-property SS-NeRF on it, and scores, against the clean labels, both the weak labels and SS-NeRF's renders at
-the training views and at the test views.
+With no pre-trained annotator here, weak labels are clean labels corrupted per view (`label_makers/corruptions.py`).
+Per scene and rate it writes a weak copy (`OUTPUT/weak/<scene>-<property>-<rate>/`), trains the single-property
+SS-NeRF on it, and scores the weak labels and the renders against the clean labels at the training and test views.
 """
 
 from __future__ import annotations
@@ -37,7 +35,7 @@ from ssnerf_method.rendering.palette import semantic_palette
 
 
 def suffix(measure: Column) -> str:
-    """What a score's name adds for a measure beside the headline (the headline's keep their plain names)."""
+    """What a score's name adds for a measure beside the headline (which keeps the plain name)."""
     return "" if measure.key == measure.prop else f" ({measure.metric})"
 
 
@@ -159,7 +157,6 @@ class AutoLabelStudy(StudyConfig):
         measures = property_columns(spec.name)
         if cache.is_file():
             cached = json.loads(cache.read_text())
-            # else cached by an older version
             if all(f"{COLUMNS[0]}{suffix(measure)}" in cached for measure in measures):
                 return cached
         model = bench.load(run.name).model

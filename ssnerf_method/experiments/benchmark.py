@@ -1,15 +1,9 @@
 """`ssnerf-benchmark`: the paper's Table 1 (SS-NeRF against the Heuristic and Hybrid baselines, per property) and
 Table 2-left (RGB PSNR of NeRF against each single-property SS-NeRF) for any set of scenes, in one command.
 
-Per scene it trains, with nerfstudio's trainer, one SS-NeRF per property (as the paper does), an RGB-only NeRF (the
-same model with no property) and, as one extra row, the all-properties SS-NeRF; scores each on the test split with
-the metrics `ns-eval` reports; runs the Heuristic baseline (labels warped from the nearest training views) and the
-Hybrid baseline (per-property annotators applied to the NeRF's renders); and writes `report.md`, `tables.json` and a
-figure per scene (ground truth, SS-NeRF, Heuristic, Hybrid on one test view, every property side by side).
-
-Every finished step leaves its result under `OUTPUT/runs/<scene>/`; running the command again skips it, so a stopped
-run resumes where it stopped (a finished model is never retrained). With `--launcher ray` the trainings and baselines
-run as Ray tasks (`experiments/launcher.py`) and the report is written from their results.
+Per scene it trains one SS-NeRF per property, an RGB-only NeRF and the all-properties SS-NeRF, scores them and the
+baselines as `ns-eval` does, and writes `report.md`, `tables.json` and figures. Finished steps are kept, so a stopped
+run resumes.
 """
 
 from __future__ import annotations
@@ -52,15 +46,12 @@ from ssnerf_method.rendering.palette import semantic_palette
 from ssnerf_method.scene.make_scene import MakeSceneConfig, camera_path, make_scene
 
 DEFAULT_STEPS = SHORT_RUN_STEPS
-"""Training steps per model unless --steps is given."""
 
 NERF = "nerf"
 """Run name of the RGB-only model (the Hybrid baseline's renderer and Table 2's NeRF row)."""
 ALL = "ssnerf-all"
-"""Run name of the all-properties model."""
 BASELINES = tuple(BASELINE_ROWS)
-"""Rows of Table 1 that train no field: the paper's two baselines, and the floor every method should beat (the
-nearest training view's labels, copied without a warp)."""
+"""Rows of Table 1 that train no field: the paper's two baselines and the nearest training view copied (a floor)."""
 
 
 @dataclass
@@ -81,25 +72,20 @@ def default_method() -> Literal["ssnerf-lite", "ssnerf"]:
 
 @dataclass
 class ScenesRunsConfig(LauncherOptions):
-    """What `ssnerf-benchmark` and every `ssnerf-study` share: the scenes, the architecture, the output folder of the
-    runs, the steps per model, --quick, and where the trainings run (--launcher)."""
+    """The options `ssnerf-benchmark` and every `ssnerf-study` share."""
 
     scenes: Tuple[Path, ...] = ()
     """Datasets in the SS-NeRF format. Default: two generated default scenes (seeds 0 and 1) in OUTPUT/scenes."""
     method: Literal["ssnerf-lite", "ssnerf"] = field(default_factory=default_method)
-    """Architecture of every trained model (the NeRF too: the same model with RGB only); default: the paper's
-    `ssnerf` on a GPU, `ssnerf-lite` on a CPU."""
+    """Architecture of every trained model (the NeRF too); default: `ssnerf` on a GPU, `ssnerf-lite` on a CPU."""
     output: Path = Path("benchmark_report")
     """Folder for the reports, the figures and every run (resumable; the benchmark and the studies share runs)."""
     steps: Optional[int] = None
     """Training steps per model (default: 1000 for ssnerf-lite, 20000 for ssnerf)."""
     lr_drop: Optional[float] = None
-    """If set, every learning rate stays constant and is multiplied by 0.1 once, at this fraction of the steps
-    (nerfstudio's MultiStepScheduler), in place of the method's exponential decay, which is sized for 30k (lite) or
-    250k steps and has barely begun after a few thousand. Runs trained so are kept apart from the others."""
+    """If set, learning rates stay constant, then drop x0.1 at this fraction of the steps (not the method's decay)."""
     quick: bool = False
-    """A few minutes on a CPU (for CI): two tiny generated scenes, tiny models, tens of steps. Numbers are not
-    meaningful; the whole pipeline runs."""
+    """A few minutes on a CPU (for CI): tiny scenes and models, tens of steps; the numbers mean nothing."""
     preset: Optional[Path] = None
     """A YAML file of these options (the repository's `configs/`: the paper's tables); flags typed after it win."""
 
@@ -110,8 +96,7 @@ class ScenesRunsConfig(LauncherOptions):
 
 @dataclass
 class BenchmarkConfig(ScenesRunsConfig):
-    """Train and score SS-NeRF, the paper's two baselines and the copied nearest view on scenes; write Table 1,
-    Table 2-left and figures."""
+    """Train and score SS-NeRF and the baselines on scenes; write Table 1, Table 2-left and figures."""
 
     properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties benchmarked (each needs labels in the scenes)."""
@@ -130,7 +115,6 @@ def run_tag(config: ScenesRunsConfig) -> str:
 
 
 def quick_config(config: BenchmarkConfig) -> BenchmarkConfig:
-    """The --quick settings applied to `config`."""
     quick = deepcopy(config)
     quick.steps = config.steps or 30
     quick.hybrid = HybridBaselineConfig(width=8, depth=3, steps=30, batch_size=4)
@@ -138,7 +122,6 @@ def quick_config(config: BenchmarkConfig) -> BenchmarkConfig:
 
 
 def shrink_for_quick(trainer: TrainerConfig) -> None:
-    """Tiny model sizes for --quick (hash grid and decoders a few times smaller, fewer samples)."""
     datamanager, model = trainer.pipeline.datamanager, trainer.pipeline.model  # type: ignore[attr-defined]
     datamanager.train_num_rays_per_batch = datamanager.eval_num_rays_per_batch = 256
     model.grid_levels, model.grid_max_res, model.grid_log2_hashmap_size, model.grid_hidden_dim = 4, 64, 14, 32
@@ -147,8 +130,7 @@ def shrink_for_quick(trainer: TrainerConfig) -> None:
 
 
 BENCHMARK_SCENE = dict(trajectory="walkthrough", normals="from-depth")
-"""How the default benchmark scenes are made: the paper's data statistics (a walk as sparse as its Replica scenes,
-every 8th frame held out; normals derived from depth), not the demo's dense loop."""
+"""Default benchmark scenes: a walk as sparse as the paper's Replica scenes, not the demo's dense loop."""
 
 
 def generated_scenes(config: BenchmarkConfig) -> List[Path]:
@@ -165,8 +147,7 @@ def generated_scenes(config: BenchmarkConfig) -> List[Path]:
 
 
 def scene_spacing(scene: Path) -> Dict[str, Any]:
-    """How far the scene's test views are from its training views (`data/spacing.py`); for a generated scene, also
-    the figure of the demo's loop scene of the same seed (60 frames, every 5th held out), for comparison."""
+    """How far the scene's test views are from its training views; for a generated scene, also the demo loop's."""
     spacing: Dict[str, Any] = dataset_spacing(scene)
     generator = json.loads((scene / "transforms.json").read_text()).get("ssnerf_scene")
     if generator and generator.get("trajectory") not in (None, "loop"):
@@ -185,11 +166,9 @@ class SceneBenchmark:
         self.folder = config.output / "runs" / name
         self.steps = config.steps or DEFAULT_STEPS[config.method]
         self.tag = run_tag(config)
-        """Run folders and cached results are per method and schedule (steps, --lr-drop), so another --steps, --method
-        or --lr-drop on the same --output trains afresh instead of reusing results of a different training."""
+        """Runs and results are per method and schedule, so another --steps/--method/--lr-drop trains afresh."""
 
     def models(self) -> List[ModelRun]:
-        """The RGB-only NeRF, one SS-NeRF per property and (optionally) the all-properties one."""
         runs = [ModelRun(NERF, ()), *(ModelRun(f"ssnerf-{name}", (name,)) for name in self.config.properties)]
         if self.config.all_properties_model:
             runs.append(ModelRun(ALL, tuple(self.config.properties)))
@@ -225,8 +204,7 @@ class SceneBenchmark:
         return self.config_path(run).parent / "nerfstudio_models" / f"step-{self.steps - 1:09d}.ckpt"
 
     def train_and_score(self, run: ModelRun) -> Dict[str, float]:
-        """Train one model unless its metrics exist; return its test-split metrics, with `train_seconds` (the
-        wall-clock time of its training), nerfstudio's `seed` and `config` (the run's config.yml)."""
+        """Train one model unless its metrics exist; return its test metrics with `train_seconds`, `seed`, `config`."""
         result = self.run_dir(run.name) / "metrics.json"
         failed = self.failed(self.log(run.name))
         if failed is not None and not result.is_file():
@@ -240,15 +218,13 @@ class SceneBenchmark:
                 write_text_atomic(result, json.dumps(metrics, indent=2))
         config, checkpoint = self.config_path(run.name), self.checkpoint(run.name)
         if metrics.get("train_seconds") is None and config.is_file() and checkpoint.is_file():
-            # trained by an interrupted call or an older version: nerfstudio writes config.yml as training starts
-            # and the final checkpoint as it ends
+            # trained by an interrupted call: config.yml is written as training starts, the checkpoint as it ends
             metrics["train_seconds"] = round(checkpoint.stat().st_mtime - config.stat().st_mtime, 1)
         if metrics.get("seed") is None:
             metrics["seed"] = self.trainer_config(run).machine.seed
         return {**metrics, "config": str(config)}
 
     def train_and_evaluate(self, run: ModelRun) -> Dict[str, Any]:
-        """Train `run` (unless its final checkpoint exists) and return its test-split metrics."""
         trainer = self.trainer_config(run)
         seconds = None
         if not self.checkpoint(run.name).is_file():
@@ -267,8 +243,7 @@ class SceneBenchmark:
         return self.run_dir(run) / "launcher.log"
 
     def failed(self, log: Path) -> Optional[Dict[str, str]]:
-        """The failure a Ray launch recorded for the job logging to `log` (never with --launcher local, which retries
-        everything in this process)."""
+        """The failure a Ray launch recorded for the job logging to `log` (none locally: it retries in-process)."""
         return failure(log) if self.config.launcher != "local" else None
 
     def job(self, run: ModelRun, after: Tuple[str, ...] = ()) -> Job:
@@ -320,8 +295,7 @@ class SceneBenchmark:
         return metrics
 
     def run(self) -> Dict[str, Dict[str, Any]]:
-        """Every model and every baseline on this scene: name -> test-split metrics (or {"failed": ...} for a run
-        a Ray launch could not finish)."""
+        """Every model and baseline on this scene: name -> test metrics (or {"failed": ...} from a Ray launch)."""
         models = self.models()
         results = {}
         for number, run in enumerate(models, start=1):
@@ -399,12 +373,11 @@ class SceneBenchmark:
 
 
 def train_job(config: BenchmarkConfig, scene: Path, name: str, run: ModelRun) -> None:
-    """A launcher job: train and score one run (module level, so Ray can send it to a worker)."""
+    """Launcher jobs: train and score a run, or score a baseline (module level, so Ray can send them to a worker)."""
     SceneBenchmark(config, scene, name).train_and_score(run)
 
 
 def baseline_job(config: BenchmarkConfig, scene: Path, name: str, baseline: str) -> None:
-    """A launcher job: score one baseline on one scene."""
     SceneBenchmark(config, scene, name).baseline(baseline)
 
 
@@ -419,8 +392,7 @@ def rgb_renderer(pipeline: Pipeline) -> Callable[[object, int], torch.Tensor]:
 
 
 def rendered_depth(pipeline: Pipeline, cameras) -> DepthSource:
-    """A trained pipeline's z-depth (world units) at camera `index` of `cameras`: the Heuristic's depth when the
-    dataset has no depth maps (the paper's released data has none)."""
+    """A trained pipeline's z-depth (world units) per camera index: the Heuristic's depth without depth maps."""
 
     def depth(index: int) -> np.ndarray:
         with torch.no_grad():

@@ -1,11 +1,5 @@
-"""Where the benchmark's and the studies' trainings run: `local` (one after another in this process, as the report is
-written) or `ray` (every training and baseline a Ray task, on a local Ray instance or an existing cluster).
-
-With `ray`, a command first lists its work as `Job`s (each one result on disk under `--output`, with the jobs it
-needs), runs the unfinished ones as Ray tasks, then writes its report exactly as a local run does: every result is
-then on disk, so the report step only reads them. A job that still fails after its retries leaves
-`<log>.failed.json`, and the report lists it with its log instead of training it in the driver. Ray is optional
-(`pip install -e .[cluster]`); nothing here imports it unless `--launcher ray` is chosen.
+"""Where the benchmark's and the studies' trainings run: `local` (in this process, as the report is written) or `ray`
+(every unfinished `Job` a Ray task before the report, which then only reads the results; Ray is imported only then).
 """
 
 from __future__ import annotations
@@ -70,13 +64,12 @@ def failure(log: Path) -> Optional[Dict[str, str]]:
 
 @contextlib.contextmanager
 def exclusive(lock: Path) -> Iterator[None]:
-    """Hold an exclusive lock on `lock` (created if needed): two processes, on one machine or on a shared filesystem
-    with working locks, never train the same run at once; the second waits, then finds the first one's result."""
+    """Hold an exclusive lock on `lock`, so two processes never train one run at once (the second reuses the result)."""
     lock.parent.mkdir(parents=True, exist_ok=True)
     with lock.open("a") as handle:
         try:
             fcntl.flock(handle, fcntl.LOCK_EX)
-        except OSError as error:  # a filesystem without locks (some NFS mounts): run unguarded, as before locks
+        except OSError as error:  # a filesystem without locks (some NFS mounts): run unguarded
             CONSOLE.print(f"[yellow]{lock}: no file lock on this filesystem ({error}); two commands sharing this "
                           "--output could train this run at once")
             yield
@@ -114,11 +107,9 @@ class LauncherOptions:
     """Where the trainings of `ssnerf-benchmark` and `ssnerf-study` run (their configs inherit these flags)."""
 
     launcher: Literal["local", "ray"] = "local"
-    """`local`: one training after another in this process. `ray`: every training and baseline a Ray task (needs
-    `pip install -e .[cluster]`); the report is written once all have finished, as a local run writes it."""
+    """`local`: one training after another in this process. `ray`: each a Ray task (`pip install -e .[cluster]`)."""
     ray_address: Optional[str] = None
-    """Ray cluster to join (e.g. `auto`, or `ray://head:10001`); default: start a local Ray instance. Every node
-    must see --output at the same path (a shared filesystem) and have this plugin installed."""
+    """Ray cluster to join (e.g. `auto`); default: a local instance. Nodes need the plugin and --output's path."""
     cpus_per_run: float = 1.0
     """CPUs Ray reserves for each run (torch uses that many threads)."""
     gpus_per_run: float = 0.0
@@ -128,18 +119,14 @@ class LauncherOptions:
 
 
 def launch(settings: LauncherOptions, jobs: Sequence[Job]) -> Dict[str, Dict[str, str]]:
-    """Run the unfinished `jobs` where `settings` say; returns key -> failure of the jobs that failed for good.
-    `local` runs nothing here: the report step trains what it needs in this process, as before."""
+    """Run the unfinished `jobs` with Ray; returns key -> failure. `local` runs nothing: the report step trains."""
     if settings.launcher == "local":
         return {}
     return RayLauncher(settings).run(ordered(jobs))
 
 
 def run_job(job: Job, *_needed: Any) -> None:
-    """A job as a Ray worker runs it: console output appended to its log (file descriptors 1 and 2, so that
-    nerfstudio's and torch's output go there too) and a `.running` record while it runs (the launcher removes an
-    earlier call's records before it submits). `_needed` are the results of the jobs it needs (Ray waits for
-    them)."""
+    """A job as a Ray worker runs it: fds 1 and 2 into its log and a `.running` record; `_needed` makes Ray wait."""
     import torch
 
     threads = os.environ.get("OMP_NUM_THREADS")  # Ray sets it to the task's CPUs
@@ -154,8 +141,7 @@ def run_job(job: Job, *_needed: Any) -> None:
     sys.stderr.flush()
     saved = os.dup(1), os.dup(2)
     with job.log.open("a") as log:
-        # the log names the attempt before the record announces it: whoever reads the record (a user, the tests)
-        # finds its attempt in the log even when the worker dies at once
+        # the log names the attempt before the record does, so a reader of the record finds it even if the worker dies
         log.write(f"\n=== {job.key}: attempt {attempt} on {socket.gethostname()}, pid {os.getpid()}, "
                   f"{time.strftime('%Y-%m-%d %H:%M:%S')} ===\n")
         log.flush()

@@ -1,9 +1,7 @@
 """Run presets: `ssnerf-benchmark --preset configs/table1.yaml`, `ssnerf-study --preset configs/table4-multitask.yaml`.
 
-A preset is a YAML mapping of the command's own options (the flag names, `_` or `-`; nested options as mappings, e.g.
-`hybrid: {steps: 3000}`), plus, for `ssnerf-study`, `study:` naming the subcommand. It is turned into those flags and
-placed before the ones typed on the command line, so typed flags win (`--preset configs/table1.yaml --quick`). The
-files in the repository's `configs/` reproduce the paper's tables and studies at this project's defaults.
+A preset is a YAML mapping of the command's options (nested ones as mappings, e.g. `hybrid: {steps: 3000}`), plus,
+for `ssnerf-study`, `study:` naming the subcommand. Its flags go before the typed ones, so typed flags win.
 """
 
 from __future__ import annotations
@@ -92,8 +90,7 @@ def _check_values(path: Path, target: Any, flags: List[str], prog: str) -> None:
 
 
 def to_flags(data: Dict[str, Any], prefix: str = "") -> List[str]:
-    """A preset mapping as command-line flags: `--name value`, `--flag` / `--no-flag` for booleans, a list as its
-    values, a mapping as `--name.inner value`."""
+    """A preset mapping as flags: `--name value`, `--flag`/`--no-flag`, a list as its values, `--name.inner value`."""
     flags: List[str] = []
     for key, value in data.items():
         name = prefix + str(key).replace("_", "-")
@@ -124,8 +121,7 @@ def cli(cls: Type[Config], prog: str, args: Optional[Sequence[str]] = None) -> C
 
 
 def study_cli(studies: Dict[str, Type], union: Any, prog: str, args: Optional[Sequence[str]] = None) -> Any:
-    """`tyro.cli(union)` of subcommands `studies`, where a `--preset` gives the subcommand (`study:`) and its flags,
-    and a subcommand typed before it must be the same."""
+    """`tyro.cli(union)` where a `--preset` gives the subcommand (`study:`) and its flags; a typed one must match."""
     args = list(sys.argv[1:] if args is None else args)
     path = preset_path(args)
     if path is None:

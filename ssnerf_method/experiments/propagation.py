@@ -1,32 +1,11 @@
 """`ssnerf-study propagation`: how little semantic labelling is enough.
 
-On each scene it trains the single-property semantics SS-NeRF (RGB + semantics, as the benchmark's `ssnerf-semantics`)
-on copies of the scene that keep less of the training frames' semantic labels:
+It trains the semantics SS-NeRF on copies of each scene that keep k densely labelled frames (`--frames`), c clicks
+per class per frame (`--pixels`), or those clicks grown over image segments, and scores it (mIoU) on the test and the
+unlabelled training views beside baselines from the same labels: the Heuristic, the nearest labelled frame and the
+nearest labelled pixel in 3D (what nearness alone gives), with the labels' mIoU ceiling and `BOUND`.
 
-- k densely labelled training frames (evenly spaced along the trajectory), for each k of `--frames`, and every
-  frame (the benchmark's own run, shared);
-- c labelled pixels per class per training frame (Semantic-NeRF's sparse-label setting), for each c of `--pixels`,
-  drawn at random from each class's pixels of the frame; and the same clicks grown over the image segments they
-  fall in (`labels/segments.py`, as `ssnerf-label --semantics-grow`), unless `--grow-scale 0`.
-
-Each model is scored on the test views (mIoU, as `ns-eval` computes it) and on the training views that have no
-label (evenly chosen, at most `--train-views-scored` of them; all training views for the pixel settings, whose
-pixels are nearly all unlabelled), against the frames' true labels. Beside it, three baselines made from the same
-labels: the Heuristic warping only the labelled frames (with the dataset's depth where it has depth maps, else the
-model's rendered depth), the nearest labelled frame copied, and each pixel given the class of the nearest labelled
-pixel in 3D (`NearestLabelledPoint`: the labelled pixels lifted as the Heuristic lifts them, the scored view's
-pixels with the model's rendered depth), which tells what the field's propagation adds to nearness alone. Each row
-also gives the highest test mIoU any method could reach from its labels (`class_coverage`): a class that is in the
-test views but on no labelled pixel scores 0; the mIoU it reaches if SS-NeRF carries those labels as well as every
-frame's labels train it (`BOUND`: the dense model's per-class IoU on the classes they show, 0 on the rest); and,
-where the scene has depth maps, the share of test pixels whose surface a labelled frame sees (`seen_pixels`) and
-SS-NeRF's test mIoU on those pixels and on the others apart, which tells what the field carries in 3D (to the seen
-pixels) from what it has to guess (the others). Writes `study_propagation.md` / `.json` and `figure_propagation.png`
-(mIoU against labelling effort, a curve per method).
-
-The copies are `transforms.json` files under `OUTPUT/propagation/` that list every frame of the scene (so nerfstudio
-orients and scales the poses exactly as for the full scene) with absolute paths into it; a pixel setting's sparse
-labels are PNGs beside its transforms. The scene itself is not touched.
+The copies (`OUTPUT/propagation/`) list every frame of the scene, so nerfstudio orients and scales poses alike.
 """
 
 from __future__ import annotations
@@ -78,36 +57,29 @@ SSNERF, SSNERF_TRAIN = "SS-NeRF", "SS-NeRF, unlabelled training views"
 HEURISTIC, NEAREST = "Heuristic (labelled frames)", "Nearest labelled frame copied"
 NEAREST_POINT = "Nearest labelled point in 3D"
 METHODS = (SSNERF, SSNERF_TRAIN, HEURISTIC, NEAREST, NEAREST_POINT)
-"""The study's columns: SS-NeRF on the test views and on the unlabelled training views, then the three baselines (on
-the test views)."""
+"""The study's columns: SS-NeRF on the test and the unlabelled training views, then the baselines (test views)."""
 ON_TRAIN = "baselines on the unlabelled training views"
-"""Key of the baselines' mIoU on the unlabelled training views in a setting's scores."""
 DEPTH = "depth"
 """Key of a view's rendered z-depth in `model_predictor`'s predictions."""
 ALL_FRAMES = "all frames"
 CEILING = "mIoU ceiling (test classes labelled)"
 """Column of the highest test mIoU the labels allow (`class_coverage`)."""
 BOUND = "all frames' SS-NeRF, unlabelled classes at 0"
-"""Column of the mIoU the labels reach if SS-NeRF carries them as well as every frame's labels train it: the dense
-model's per-class test IoU (`CLASS_IOU`) over the classes some labelled pixel shows, the others scored 0."""
+"""Column: the dense model's per-class test IoU (`CLASS_IOU`) over the classes a labelled pixel shows, others 0."""
 CLASS_IOU = "class_iou"
 """Key of the dense model's test IoU per class id (as a string) in its scores."""
 SEEN = "test pixels a labelled frame sees"
-"""Column of `seen_share` (frame settings only)."""
 ON_SEEN, ON_UNSEEN = "SS-NeRF on seen test pixels", "SS-NeRF on unseen test pixels"
 """Columns of SS-NeRF's test mIoU on the pixels of `SEEN` and on the rest (frame settings only)."""
 DRAWS = "draws"
 """Key of a setting's SS-NeRF test mIoU per click draw (seed, as a string) in its scores, when it has several."""
 DRAW = "SS-NeRF, draw {}"
-"""Column of one click draw's SS-NeRF test mIoU in the per-scene tables (the seed in the braces)."""
 LOWEST, HIGHEST = "SS-NeRF, lowest draw", "SS-NeRF, highest draw"
-"""Columns of the lowest and the highest click draw's SS-NeRF test mIoU (average over the scenes; `--seeds`)."""
 
 
 @dataclass(frozen=True)
 class Setting:
-    """One amount of labelling: k densely labelled frames (`frames`), c pixels per class per frame (`pixels`, grown
-    over the image's segments with `grow` as the segmentation's scale, if set), or every frame's labels (neither)."""
+    """One amount of labelling: k dense frames, c pixels per class per frame (grown at scale `grow`), or all."""
 
     frames: Optional[int] = None
     pixels: Optional[int] = None
@@ -115,7 +87,6 @@ class Setting:
 
     @property
     def family(self) -> str:
-        """frames, pixels or grown (the figure's curves); dense for every frame's labels."""
         if self.frames is not None:
             return "frames"
         if self.pixels is not None:
@@ -131,9 +102,7 @@ class Setting:
         return ALL_FRAMES
 
     def folder(self, scene: Path, seed: int = 0) -> str:
-        """The labelled copy's folder (and its runs' name). The pixel settings' clicks depend on the study's `seed`:
-        a seed other than 0 is in the name, so that another draw never reuses the copy or the runs of an earlier one
-        (seed 0 keeps the plain name of the runs made before draws were named)."""
+        """The copy's folder and runs' name; a pixel setting's nonzero seed is in it, so draws never share them."""
         suffix = f"{self.frames}frames" if self.frames is not None else f"{self.pixels}pixels"
         drawn = f"-draw{seed}" if self.pixels is not None and seed != 0 else ""
         return f"{scene.name}-{suffix}" + ("" if self.grow is None else f"-grown{self.grow:g}") + drawn
@@ -160,9 +129,7 @@ def sparse_pixels(label: np.ndarray, count: int, rng: np.random.Generator) -> np
 
 
 def class_coverage(scene: Path) -> Dict[str, Any]:
-    """Which of the test views' classes the training frames' labels show, and the mIoU ceiling that makes (mIoU
-    averages over the test views' classes: one that no labelled pixel shows cannot be predicted and scores 0, any
-    other at best 1). Read from the label files of `scene` (a propagation copy or the scene itself)."""
+    """Which test-view classes the training labels of `scene` show, and the mIoU ceiling (unshown classes score 0)."""
     key = class_property().file_key
     train, test = (set(paths) for paths in split_images(scene))
     shown: set = set()
@@ -196,10 +163,8 @@ def dense_bound(run: Dict[str, Any], dense: Dict[str, Any]) -> Optional[float]:
 def seen_pixels(
     train: SSNeRFDataset, test: SSNeRFDataset, frames: List[int]
 ) -> Optional[Dict[int, Tuple[Tensor, Tensor]]]:
-    """Per test view, (H, W) masks of its pixels whose surface point one of the training views `frames` sees
-    (`PinholeView.sees`, with the dataset's depth maps) and of those (with a depth) whose surface none sees; None
-    without depth maps. A frame's labels reach what it sees; the rest a method has to guess (e.g. by extending a
-    wall's class)."""
+    """Per test view, (H, W) masks of the pixels whose surface one of `frames` sees and of those (with a depth) none
+    sees; None without depth maps. A frame's labels reach what it sees; the rest must be guessed."""
     if train.depth_files is None or test.depth_files is None or not frames:
         return None
     scale = train.metadata["dataparser_scale"]
@@ -228,9 +193,7 @@ def seen_share(masks: Optional[Dict[int, Tuple[Tensor, Tensor]]]) -> Optional[fl
 
 
 def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, seed: int = 0) -> Dict[str, Any]:
-    """Write `destination/transforms.json`: every frame of the scene with its labels, but the training frames'
-    semantics cut down to `setting` (test frames keep theirs). Returns what was kept: the labelled training images
-    and the fraction of training pixels labelled (by hand: the clicks, before any growing)."""
+    """Write the scene with its training semantics cut down to `setting`; returns what was kept and labelled."""
     key = class_property().file_key
     train = {str(path) for path in split_images(scene)[0]}
     root = scene.resolve()
@@ -276,23 +239,17 @@ def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, s
 
 @dataclass
 class PropagationStudy(StudyConfig):
-    """Semantics from k labelled frames, or from c labelled pixels per class per frame, against every frame's
-    labels; SS-NeRF beside the Heuristic and the nearest labelled frame, from the same labels."""
+    """Semantics from k labelled frames or c pixels per class per frame, against every frame's labels."""
 
     frames: Tuple[int, ...] = (1, 2, 4, 8)
-    """Numbers k of densely labelled training frames (evenly spaced); the model trained on every frame's labels is
-    always added."""
+    """Numbers k of densely labelled training frames (evenly spaced); the every-frame model is always added."""
     pixels: Tuple[int, ...] = (1, 5, 25)
     """Numbers c of labelled pixels per class per training frame."""
     grow_scale: float = SEGMENT_SCALE
-    """Each c's clicks are also grown over the image segments they fall in, with this segmentation scale (as
-    `ssnerf-label --semantics-grow`); 0 leaves the grown rows out."""
+    """Segmentation scale to grow each c's clicks over image segments (as `ssnerf-label --semantics-grow`); 0: none."""
     seeds: Tuple[int, ...] = (0,)
-    """Seeds of the pixel settings' random pixels, one click draw each. With several, each pixel setting is trained
-    once per draw and its row gives the mean over the draws, beside the study average of the lowest and the highest
-    draw: one 1-click run moves by up to 0.16 mIoU between draws. A seed other than 0 names its folders and runs
-    `-draw<seed>`, so one output folder holds every draw; the frame settings, which no seed changes, are trained
-    once."""
+    """Seeds of the pixel settings' click draws; with several, each pixel setting is trained per draw and its row
+    gives the mean, beside the lowest and highest draw (one click is noisy). Frame settings are trained once."""
     train_views_scored: int = 12
     """Unlabelled training views scored per model (evenly spaced among them)."""
 
@@ -307,15 +264,13 @@ class PropagationStudy(StudyConfig):
         return [*(Setting(frames=k) for k in frames), Setting(), *(Setting(pixels=c) for c in pixels), *grown]
 
     def draws(self, setting: Setting) -> Tuple[int, ...]:
-        """The click draws (seeds) `setting` is trained with: every seed for a pixel setting, the first for the rest
-        (no seed changes them)."""
+        """The seeds `setting` is trained with: every seed for a pixel setting, the first for the rest."""
         if not self.seeds:
             raise ValueError("--seeds: give at least one seed (e.g. --seeds 0 1 2).")
         return self.seeds if setting.pixels is not None else self.seeds[:1]
 
     def benchmarks(self, config: BenchmarkConfig) -> Dict[Tuple[str, Setting, int], SceneBenchmark]:
-        """Per (scene, setting, draw): the benchmark of its labelled copy (the scene itself for every frame's
-        labels)."""
+        """Per (scene, setting, draw): the benchmark of its labelled copy (the scene itself for every frame)."""
         config = BenchmarkConfig(**{**vars(config), "properties": (class_property().name,),
                                     "all_properties_model": False})
         scenes = list(config.scenes) or generated_scenes(config)
@@ -341,7 +296,6 @@ class PropagationStudy(StudyConfig):
         return [bench.job(self.run_of()) for bench in self.benchmarks(config).values()]
 
     def run(self) -> Results:
-        """Train every setting's model, score it and the baselines, write the report and the figure."""
         start = time.time()
         config = self.benchmark_config()
         config.output.mkdir(parents=True, exist_ok=True)
@@ -365,9 +319,7 @@ class PropagationStudy(StudyConfig):
         return results
 
     def score(self, bench: SceneBenchmark, setting: Setting) -> Dict[str, Any]:
-        """A setting's model trained and scored (test views, unlabelled training views) and the three baselines,
-        computed once and kept in `propagation-<method>-<steps>.json` in its runs folder (a cache written before a
-        score was reported gets that score added, the rest of it standing)."""
+        """A setting's model and the baselines scored, cached in its runs folder (missing scores added to a cache)."""
         run = self.run_of()
         metrics = bench.train_and_score(run)
         if "failed" in metrics:
@@ -379,7 +331,6 @@ class PropagationStudy(StudyConfig):
         dense = setting == Setting()
         wanted = {NEAREST_POINT, *([] if setting.pixels is not None else [ON_SEEN]), *([CLASS_IOU] if dense else [])}
         if cached is not None and wanted <= cached.keys():
-            # (the coverage is read afresh: caches written before it was reported lack it)
             return {**cached, **class_coverage(bench.scene), **self._record(metrics, bench)}
         pipeline = bench.load(run.name)
         train: SSNeRFDataset = pipeline.datamanager.train_dataset  # type: ignore[assignment]
@@ -454,10 +405,7 @@ class PropagationStudy(StudyConfig):
         return full
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
-        """Rows: the settings; columns: each method's mIoU (average over scenes), the share of the dense model's
-        mIoU, the mIoU ceiling of the labels (`class_coverage`) and the dense model's mIoU on the classes they show
-        (`BOUND`), the share of test pixels the labelled frames see and SS-NeRF's mIoU on them and on the rest, and
-        the fraction of training pixels labelled."""
+        """Rows: the settings; columns: each method's mIoU over the scenes and the measures the notes explain."""
         rows = []
         for setting in self.settings():
             runs = [scenes.get(setting.name, {}) for scenes in results.values()]
@@ -473,8 +421,7 @@ class PropagationStudy(StudyConfig):
             row[ON_SEEN] = average([run.get(ON_SEEN) for run in runs])
             row[ON_UNSEEN] = average([run.get(ON_UNSEEN) for run in runs])
             row["labelled pixels"] = average([run.get("labelled_pixel_fraction") for run in runs])
-            # each draw's study average (the draw of that seed on every scene), its lowest and its highest; a
-            # setting of one draw has no `DRAWS` (`over_draws`), so none
+            # each draw's study average, its lowest and highest; a single draw has no `DRAWS`, so none
             by_draw = [average([run.get(DRAWS, {}).get(str(seed)) for run in runs]) for seed in self.draws(setting)]
             by_draw = [value for value in by_draw if value is not None]
             row[LOWEST], row[HIGHEST] = (min(by_draw), max(by_draw)) if by_draw else (None, None)
@@ -505,9 +452,7 @@ class PropagationStudy(StudyConfig):
         return text, {"propagation": rows, "per_scene": per_scene}
 
     def figure(self, results: Results, path: Path) -> Path:
-        """mIoU against labelling effort (the fraction of training pixels labelled by hand, log scale): a curve per
-        method for the frame settings, one for the pixel settings and one for the grown clicks, the dense model as a
-        line."""
+        """mIoU against the fraction of pixels labelled (log): a curve per method and family, the dense model a line."""
         import matplotlib
 
         matplotlib.use("Agg")
@@ -543,10 +488,7 @@ class PropagationStudy(StudyConfig):
 
 
 def over_draws(scores: Dict[int, Dict[str, Any]]) -> Dict[str, Any]:
-    """One setting's scores on one scene from its click draws (seed: scores): a single draw's as they are; with
-    several, the first draw's with the numbers that differ between draws (every method's mIoU, on the test and the
-    unlabelled training views, and the labelled fraction) replaced by their mean, and each draw's SS-NeRF test mIoU
-    under `DRAWS`. A failed draw fails the setting."""
+    """One setting's scores on a scene from its draws: varying scores averaged, each draw's under `DRAWS`."""
     if len(scores) == 1:
         return next(iter(scores.values()))
     failed = [score for score in scores.values() if "failed" in score]
@@ -563,8 +505,7 @@ def over_draws(scores: Dict[int, Dict[str, Any]]) -> Dict[str, Any]:
 
 
 def model_predictor(pipeline: Pipeline) -> Predictor:
-    """A trained pipeline as a predictor of its class property (rendered logits), with its rendered z-depth as
-    `DEPTH` (world units, (H, W); what `NearestLabelledPoint` lifts a view's pixels with)."""
+    """A trained pipeline as a class predictor, with its rendered z-depth (world units, (H, W)) as `DEPTH`."""
     spec = class_property()
 
     def predict(cameras, index: int) -> Dict[str, torch.Tensor]:
@@ -577,8 +518,7 @@ def model_predictor(pipeline: Pipeline) -> Predictor:
 
 
 def once_per_view(predict: Predictor) -> Predictor:
-    """`predict` asked once per view index (a predictor of one dataset's views: every score made of them shares
-    its renders)."""
+    """`predict` asked once per view index, so every score of one dataset's views shares its renders."""
     views: Dict[int, Dict[str, Any]] = {}
 
     def predict_once(cameras, index: int) -> Dict[str, Any]:

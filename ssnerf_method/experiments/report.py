@@ -29,7 +29,6 @@ class Column:
     metric: str
     """Metric name in the runs' metrics (`semantics_miou`, `edges_f1`, ...)."""
     higher: bool
-    """Whether higher is better."""
     decides: bool = True
     """Whether a comparison between methods reads it (`Metric.decides`): F1 and AP for the sparse maps, not L1."""
 
@@ -45,8 +44,7 @@ class Column:
 
 
 def property_columns(name: str) -> List[Column]:
-    """A property's reported numbers (its metric's `reported`): the paper's headline first, then the measures beside
-    it (F1 and AP for the sparse maps, which an empty map cannot pass)."""
+    """A property's reported numbers: the paper's headline first, then the others (e.g. F1 and AP for sparse maps)."""
     spec, metric = REGISTRY[name], METRICS[REGISTRY[name].metric]
     deciding = metric.decides or (metric.reported[0][0],)
     return [Column(name if index == 0 else spec.metric_prefix + key, name, spec.metric_prefix + key, higher,
@@ -54,7 +52,6 @@ def property_columns(name: str) -> List[Column]:
 
 
 def columns_of(properties: Sequence[str]) -> List[Column]:
-    """Every reported column of `properties`, property by property."""
     return [column for name in properties for column in property_columns(name)]
 
 
@@ -65,7 +62,6 @@ def headline(name: str) -> Tuple[str, bool]:
 
 
 def property_title(name: str) -> str:
-    """A property's headline column title: the paper's abbreviation, its Table 1 metric and the better direction."""
     return property_columns(name)[0].title
 
 
@@ -75,8 +71,7 @@ def average(values: Sequence[Optional[float]]) -> Optional[float]:
 
 
 def table1(results: Results, properties: Sequence[str]) -> List[Dict]:
-    """Rows of Table 1: SS-NeRF per scene (property X from the model trained on X), their average, the all-properties
-    model's average (when trained) and each baseline's average, the nearest training view's copied labels last."""
+    """Rows of Table 1: SS-NeRF per scene and averaged, then the all-properties model's and baselines' averages."""
     columns = columns_of(properties)
     rows = []
     for scene, runs in results.items():
@@ -119,8 +114,7 @@ def property_table(rows: List[Dict], properties: Sequence[str], digits: int = 4)
 
 
 def beats(rows: List[Dict], properties: Sequence[str], baseline: str) -> Dict[str, List[str]]:
-    """Per property, the deciding measures (`Column.decides`) on which SS-NeRF's average does not beat the baseline's
-    average: an empty list is a win. Properties either row lacks are left out."""
+    """Per property, the deciding measures on which SS-NeRF's average does not beat the baseline's (empty: a win)."""
     ours = next(row for row in rows if row["row"] == "SS-NeRF, average")
     theirs = next((row for row in rows if row["row"] == f"{baseline}, average"), None)
     result = {}
@@ -149,8 +143,7 @@ def failures(results: Dict[str, Dict[str, Dict]]) -> str:
 
 
 def spacing_table(spacing: Dict[str, Dict]) -> str:
-    """Per scene, the median distance and angle from a test view to its nearest training view (and, for a generated
-    scene, the same for the demo's loop scene of its seed)."""
+    """Per scene, the median distance and angle from a test view to its nearest training view (and the loop's)."""
     lines = ["| scene | test views | median distance to the nearest training view | median angle | "
              "the loop scene of the same seed |", "|---|---|---|---|---|"]
     def where(values: Optional[Dict]) -> Tuple[str, str]:

@@ -1,11 +1,7 @@
 """`ssnerf-study sparsity`: SS-NeRF and Table 1's three baselines per property against the number of training views.
 
-From one dense sequence (default: the seed-0 walkthrough rendered with 56 frames, every 8th held out, so 49 training
-views), it keeps k evenly spaced training views for each k of `--views` (the test views never change; the k-view copy
-is the transfer study's, `make_limited_dataset`), and on each copy runs Table 1 without the all-properties model: an
-RGB-only NeRF, one SS-NeRF per property, the Heuristic (labels warped from the nearest of the k views), the Hybrid
-(annotators trained on the k views, applied to the NeRF's renders) and the nearest of the k views' labels copied. It
-tells a user how densely to capture, and shows where warping the nearest view stops being enough.
+For each k of `--views` it runs Table 1 on k evenly spaced training views of a dense sequence: how densely to capture,
+and where warping the nearest view stops being enough.
 """
 
 from __future__ import annotations
@@ -32,14 +28,12 @@ from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
 METHODS = {"SS-NeRF": None, **{title: key for key, title in BASELINE_ROWS.items()}}
-"""Columns of the study: SS-NeRF (each property from its own model), then Table 1's rows that train no field (the
-Heuristic, the Hybrid, the copied nearest view), by their result keys."""
+"""Columns of the study: SS-NeRF (each property from its own model), then Table 1's baselines by result key."""
 DENSE_FRAMES = 56
 """Frames of the default dense sequence: every 8th held out leaves 49 training views, enough for k = 48."""
 
 
 def jobs_of(benches: Dict[str, Tuple[Path, int, SceneBenchmark]]) -> List[Job]:
-    """Every k-view copy's models and baselines as launcher jobs."""
     return [job for _, _, bench in benches.values() for job in bench.jobs()]
 
 
@@ -86,7 +80,6 @@ class SparsityStudy(StudyConfig):
         return jobs_of(self.benchmarks(config))
 
     def run(self) -> Results:
-        """Every k-view copy's Table 1, then the study's tables and figure."""
         start = time.time()
         config = self.benchmark_config()
         config.output.mkdir(parents=True, exist_ok=True)

@@ -1,18 +1,12 @@
 """`ssnerf-study`: the paper's ablation and multi-task studies (Sec. 4.3), one command each.
 
-Each study trains its models on every scene with the benchmark's machinery (`SceneBenchmark`: nerfstudio's trainer,
-the `ns-eval` metrics, one folder per run, a finished run never retrained) and writes `study_<name>.md` and
-`study_<name>.json` next to the runs: the paper's table with your numbers, plus the exact command, the commit, the
-method, steps, seed and wall-clock time of every run. Runs are named by what they train, so a study reuses the runs
-`ssnerf-benchmark` or another study left in the same output folder (e.g. `ssnerf-shading`).
+Each study trains its models on every scene as the benchmark does and writes `study_<name>.md` and `.json`. Runs are
+named by what they train, so a study reuses the runs the benchmark or another study left in the same output folder.
 
-- `branches` (Table 3): each property on F_dec^v and on F_dec^nv; normals in this plugin's world-frame mode and in the
-  paper's pose-conditioned mode.
-- `rgb` (Table 2): left, RGB PSNR of the RGB-only NeRF and of each single-property SS-NeRF; right, each property with
-  and without the RGB loss (weight 0: the RGB head stays, nothing trains it).
+- `branches` (Table 3): each property on F_dec^v and on F_dec^nv; world-frame against pose-conditioned normals.
+- `rgb` (Table 2): RGB PSNR with and without each property; each property with and without the RGB loss.
 - `multitask` (Table 4): a target property alone, with each other property, and with all; (+)/(-) against alone.
-- `class-grid` (this plugin's option): each property alone with and without the coarse class grid as an input of its
-  decoder, and the all-properties model with the grid for the class property only or for `--gridded`.
+- `class-grid` (this plugin's option): each property with and without the coarse class grid as a decoder input.
 """
 
 from __future__ import annotations
@@ -60,7 +54,6 @@ from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, PropertyName
 Results = Dict[str, Dict[str, Dict[str, Any]]]
 """scene -> run name -> that run's test-split metrics."""
 RUN_RECORD = ("train_seconds", "seed", "config")
-"""What a report says of every run besides its metrics: training wall-clock time, seed and config.yml."""
 LITE_MODEL = ssnerf_lite_config.pipeline.model
 """`ssnerf-lite`'s model config, whose class-grid settings the class-grid study starts from."""
 
@@ -80,8 +73,7 @@ def together(names: Tuple[str, ...]) -> str:
 
 def scene_rows(results: Results, title: str, properties: Tuple[str, ...], run_of: Callable[[str], str]
                ) -> List[Dict[str, Any]]:
-    """Rows `title (scene)` for every scene and their average, each column of `properties` read from the run
-    `run_of(property)`."""
+    """Rows `title (scene)` per scene and their average, each property's columns read from `run_of(property)`."""
     rows = []
     for scene, runs in [*results.items(), ("average", None)]:
         row: Dict[str, Any] = {"row": f"{title} ({scene})"}
@@ -107,7 +99,6 @@ class StudyConfig(ScenesRunsConfig):
         return [SceneBenchmark(config, scene, scene.name).job(run) for scene in scenes for run in self.runs()]
 
     def run(self) -> Results:
-        """Train what the study needs on every scene and write its report."""
         return run_study(self)
 
     def tables(self, results: Results) -> Tuple[str, Dict[str, Any]]:
@@ -206,7 +197,6 @@ class MultiTaskStudy(StudyConfig):
         return [prop for prop in self.others if prop != self.target]
 
     def columns(self) -> Dict[str, ModelRun]:
-        """Column title -> the run scored in it."""
         columns = {"alone": ModelRun(single(self.target), (self.target,))}
         for prop in self.partners():
             pair = (self.target, prop)
@@ -228,8 +218,7 @@ class MultiTaskStudy(StudyConfig):
         return "\n\n".join(texts), {**data, "target": self.target, "metric": key, "higher_is_better": higher}
 
     def table(self, results: Results, column: Column) -> Tuple[str, List[Dict[str, Any]]]:
-        """Table 4 for one reported measure of the target: its rows and Markdown, each cell marked (+) or (−)
-        against the target alone."""
+        """Table 4 for one measure of the target: rows and Markdown, cells marked (+)/(−) against it alone."""
         columns = self.columns()
         rows = []
         for scene, runs in results.items():
@@ -256,16 +245,14 @@ class MultiTaskStudy(StudyConfig):
 
 @dataclass
 class ClassGridStudy(StudyConfig):
-    """Which decoders should read the class grid (`class_grid_properties`): each property alone with and without it,
-    and the all-properties model with it for the class property only and for `--gridded` (ssnerf-lite's choice)."""
+    """Which decoders should read the class grid: each property with and without it, and the all-properties model."""
 
     properties: Tuple[PropertyName, ...] = OPTIONAL_PROPERTIES
     """Properties compared with and without the grid, each in a model of its own."""
     gridded: Tuple[PropertyName, ...] = LITE_MODEL.class_grid_properties
     """The all-properties model's second setting: the properties whose decoders read the grid (ssnerf-lite's)."""
     max_res: int = LITE_MODEL.class_grid_max_res
-    """Finest resolution of the class grid in every run (ssnerf-lite's; set in every run, so that the paper's
-    `ssnerf` gets the grid too)."""
+    """Finest resolution of the class grid, set in every run so that `ssnerf` gets the grid too."""
     all_properties_model: bool = True
     """Also compare the all-properties model with the grid for the class property only and for `--gridded`."""
 
@@ -277,7 +264,6 @@ class ClassGridStudy(StudyConfig):
                         {"class_grid_max_res": self.max_res, "class_grid_properties": (prop,) if grid else ()})
 
     def everything(self, gridded: Tuple[str, ...]) -> ModelRun:
-        """Every property in one model, the decoders of `gridded` reading the grid."""
         ordered = tuple(name for name in OPTIONAL_PROPERTIES if name in gridded)
         return ModelRun(f"{ALL}-class-grid-" + "+".join(ordered), OPTIONAL_PROPERTIES,
                         {"class_grid_max_res": self.max_res, "class_grid_properties": ordered})
@@ -312,7 +298,6 @@ class ClassGridStudy(StudyConfig):
 
 
 def commit() -> Optional[str]:
-    """The plugin's git commit, when it runs from a checkout."""
     try:
         return subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(__file__).parent, capture_output=True,
                               text=True, check=True).stdout.strip()
@@ -343,8 +328,7 @@ def run_study(study: StudyConfig) -> Results:
 
 
 def write_study_report(study: StudyConfig, results: Results, runs: Dict[str, Any], seconds: float) -> Path:
-    """`study_<name>.md` and `.json` in the output folder: the study's tables, the command, the commit, the method
-    and steps, and `runs` (per scene and run: what it trained, its seed and training time)."""
+    """Write `study_<name>.md` and `.json`: the tables, command, commit, method, steps and `runs` (per-run records)."""
     config = study.benchmark_config()
     text, tables = study.tables(results)
     steps = config.steps or DEFAULT_STEPS[config.method]

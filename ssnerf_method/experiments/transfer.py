@@ -1,13 +1,8 @@
 """`ssnerf-study transfer`: knowledge transfer between properties with limited views (the paper's Table 5).
 
-Per scene, a source property's SS-NeRF is trained on all training views (the benchmark's run, reused), and the target
-property's SS-NeRF is then trained on only k training views (chosen evenly along the trajectory), once from scratch
-("Limited Views") and once per source with F_enc initialised from the source model (`encoder_init`,
-`model/encoder_transfer.py`). Both are scored on the full test split.
-
-The k-view dataset is a `transforms.json` under `OUTPUT/limited/` that lists every frame of the scene (so nerfstudio
-orients and scales the poses exactly as for the source model, whose F_enc lives in that frame) with absolute paths
-into the scene, and names only the k views as training frames. The scene itself is not touched.
+Per scene, each source's SS-NeRF is trained on all training views and the target's on k evenly spaced views, from
+scratch ("Limited Views") and with F_enc initialised from each source (`encoder_init`). The k-view copy lists every
+frame of the scene, so poses are oriented and scaled as for the source model, whose F_enc lives in that frame.
 """
 
 from __future__ import annotations
@@ -47,8 +42,7 @@ def evenly_spaced(names: List[str], k: int) -> List[str]:
 
 
 def make_limited_dataset(scene: Path, destination: Path, k: int) -> List[str]:
-    """Write `destination/transforms.json`: the scene's frames with k evenly spaced training views and the scene's
-    own test split. Returns the k training images (paths relative to the scene)."""
+    """Write `destination/transforms.json`: the scene with k evenly spaced training views; returns them (relative)."""
     parser = SSNeRFDataParserConfig(data=scene).setup()
     train = [Path(name) for name in parser.get_dataparser_outputs("train").image_filenames]
     test = [Path(name) for name in parser.get_dataparser_outputs("test").image_filenames]
@@ -67,8 +61,7 @@ def make_limited_dataset(scene: Path, destination: Path, k: int) -> List[str]:
 
 
 def limited_scene(output: Path, scene: Path, k: int) -> Path:
-    """`OUTPUT/limited/<scene>-<k>views`: the scene's k-view copy (`make_limited_dataset`), made once and shared by
-    the studies that train on k views (transfer, sparsity)."""
+    """`OUTPUT/limited/<scene>-<k>views`: the scene's k-view copy, made once and shared by transfer and sparsity."""
     root = output / "limited" / f"{scene.name}-{k}views"
     if not (root / "transforms.json").is_file():
         make_limited_dataset(scene, root, k)
@@ -123,7 +116,6 @@ class TransferStudy(StudyConfig):
         return jobs
 
     def run(self) -> Results:
-        """Source models (all views), the k-view target from scratch and from each source; report and figures."""
         start = time.time()
         config = self.benchmark_config()
         config.output.mkdir(parents=True, exist_ok=True)

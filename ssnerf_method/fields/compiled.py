@@ -88,10 +88,8 @@ class CompiledOrEager(Generic[Output]):
 
 @dataclass
 class CompileConfig:
-    """When a training run goes through `torch.compile`: the field's and the proposal networks' training forwards and
-    backwards (the same outputs from a cheaper CPU step, after a compile of tens of seconds at the first step, less
-    once inductor's cache in the temp folder holds it). Where compiling fails, one console line and eager steps.
-    Evaluation, the viewer and CUDA training stay eager."""
+    """When a CPU training run compiles the field's and the proposal networks' forwards and backwards (the same
+    outputs from a cheaper step, after a compile at the first step). Evaluation, the viewer and CUDA stay eager."""
 
     enabled: bool = True
     """Compile CPU training runs of at least `min_steps` steps."""

@@ -1,10 +1,9 @@
 """`ssnerf-import paper-llff`: the SS-NeRF authors' released Replica scenes, in the LLFF layout.
 
-Source layout (one scene): `images/000.png ...`, `poses_bounds.npy` (N x 17: per frame a 3x5 matrix [R | t | hwf]
-flattened row-major, R's columns the camera's down, right and backwards axes, hwf = image height, width and focal
-length in pixels at the pose file's resolution; then near, far), and label folders with the images' file names:
-`normal_new/` or `normal/` (RGB = (n + 1) / 2), `reshading/`, `keypoint/`, `edge/` (first channel / 255) and `label/`
-(class id in the first channel). Every 8th frame (0, 8, 16, ...) is held out for test, as the authors' `llffhold = 8`.
+Source layout: `images/000.png ...`, `poses_bounds.npy` (N x 17: row-major 3x5 [R | t | hwf], R's columns the camera's
+down, right, backwards axes, hwf in pixels at the pose file's resolution; then near, far), and label folders named
+like the images: `normal_new/` or `normal/` ((n + 1) / 2), `reshading/`, `keypoint/`, `edge/` (value / 255) and
+`label/` (class id). Every 8th frame from 0 is test (the authors' `llffhold = 8`).
 """
 
 from __future__ import annotations
@@ -65,9 +64,8 @@ class PaperLLFFImportConfig:
     class_names: tuple[str, ...] = ()
     """Names of the class ids in label/, id = position (default: the 13 NYUv2-13 classes, bed=0 ... window=12)."""
     normals_axes: str = "LUB"
-    """Camera-frame direction of the source normals' +x, +y, +z: one letter each of R/L (right/left), U/D (up/down),
-    B/F (backwards, towards the viewer / forwards). Ours is RUB; the paper's SN = (-dz/dx, -dz/dy, 1) with image x
-    right, y down gives LUB."""
+    """Camera-frame direction of the source normals' +x, +y, +z, one letter each of R/L, U/D, B/F (backwards =
+    towards the viewer). Ours is RUB; the paper's SN = (-dz/dx, -dz/dy, 1) in image axes gives LUB."""
     test_every: int = 8
     """Frames 0, test_every, 2*test_every, ... are the test (and val) frames, as the authors' llffhold."""
     overwrite: bool = False
@@ -78,14 +76,7 @@ class PaperLLFFImportConfig:
 
 
 def llff_poses_to_opengl(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Camera-to-world matrices in nerfstudio's OpenGL axes, and each frame's hwf.
-
-    Args:
-        poses_bounds: (N, 17) rows of poses_bounds.npy.
-
-    Returns:
-        (N, 4, 4) camera-to-world with columns (right, up, backwards, position) = (R1, -R0, R2, t), and (N, 3) hwf.
-    """
+    """(N, 4, 4) OpenGL camera-to-world (columns (R1, -R0, R2, t)) and (N, 3) hwf from poses_bounds.npy's rows."""
     matrices = poses_bounds[:, :15].reshape(-1, 3, 5)
     rotation, translation = matrices[:, :, :3], matrices[:, :, 3]
     camera_to_world = np.tile(np.eye(4), (len(matrices), 1, 1))
@@ -95,10 +86,7 @@ def llff_poses_to_opengl(poses_bounds: np.ndarray) -> tuple[np.ndarray, np.ndarr
 
 
 def normals_axes_conversion(code: str) -> tuple[list[int], list[bool]]:
-    """For each of our axes (x, y, z): the source channel holding it and whether that channel is flipped.
-
-    `code` gives, per source channel, the direction its +axis points in (see `PaperLLFFImportConfig.normals_axes`).
-    """
+    """Per axis of ours, the source channel holding it and whether it is flipped, from `normals_axes` `code`."""
     letters = code.strip().upper()
     axes = [AXIS_LETTERS.get(letter) for letter in letters]
     if len(letters) != 3 or None in axes or sorted(axis for axis, _ in axes) != [0, 1, 2]:  # type: ignore[misc]

@@ -1,10 +1,8 @@
 """`ssnerf-import semantic-nerf`: one sequence of Semantic-NeRF's Replica renders.
 
-Source layout: `rgb/rgb_N.png`, `depth/depth_N.png` (uint16 millimetres, our depth encoding), `semantic_class/
-semantic_class_N.png` (Replica class ids) and `traj_w_c.txt` (line N: frame N's camera-to-world 4x4, row-major, OpenCV
-axes x right, y down, z forward). Pinhole camera with a 90 degree horizontal field of view. As in Semantic-NeRF,
-frames 0, 5, 10, ... train and frames 2, 7, 12, ... test; other frames are not imported. Normals, shading, keypoints
-and edges are not in the source: `ssnerf-label DST` makes them afterwards.
+Source layout: `rgb/rgb_N.png`, `depth/depth_N.png` (uint16 mm), `semantic_class/semantic_class_N.png` (Replica ids)
+and `traj_w_c.txt` (line N: frame N's camera-to-world 4x4, row-major, OpenCV axes x right, y down, z forward); 90
+degree HFoV pinhole. Frames 0, 5, 10, ... train, 2, 7, 12, ... test (as Semantic-NeRF); `ssnerf-label` adds the rest.
 """
 
 from __future__ import annotations
@@ -62,11 +60,10 @@ class SemanticNeRFImportConfig:
     dst: Annotated[Path, tyro.conf.Positional, tyro.conf.arg(metavar="DST")]
     """Output folder (must be missing or empty unless --overwrite)."""
     downscale: int = 1
-    """Integer image downscale (2 gives the paper's 320x240 from 640x480): RGB by pixel-area averaging, depth and
-    semantics nearest neighbour, intrinsics scaled."""
+    """Integer image downscale (2: the paper's 320x240 from 640x480); depth and semantics by nearest neighbour."""
     replica_info: Path | None = None
-    """Replica's info_semantic.json; its class names are mapped to NYUv2-13 (default: SRC/info_semantic.json if
-    present; with neither, the ids present are remapped to contiguous classes, 0 = void, as Semantic-NeRF does)."""
+    """Replica's info_semantic.json, whose names map to NYUv2-13 (default: SRC's if present; else ids are remapped
+    to contiguous classes, 0 = void)."""
     overwrite: bool = False
     """Replace a non-empty output folder (only once the import has succeeded)."""
 

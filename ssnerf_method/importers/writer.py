@@ -1,9 +1,5 @@
-"""What both importers share: turning source pixels into our encodings, and writing frames and transforms.json.
-
-An importer reads its source layout, converts each frame's cameras and labels to the SS-NeRF dataset format (see
-docs/dataset-format.md) and hands them to a `DatasetWriter`, which writes into a `StagedOutputFolder` so that a
-failed import leaves nothing behind.
-"""
+"""What both importers share: turning source pixels into our encodings (docs/dataset-format.md), and writing frames
+and transforms.json with a `DatasetWriter` (into a `StagedOutputFolder`, so a failed import leaves nothing)."""
 
 from __future__ import annotations
 
@@ -31,7 +27,6 @@ SPLITS = ("train", "val", "test")
 
 
 def require_folder(path: Path, what: str) -> Path:
-    """`path` if it is a folder, else a `DatasetInputError` saying what it should hold."""
     if not path.is_dir():
         raise DatasetInputError(f"{path}: not a folder. It should be {what}.")
     return path
@@ -45,7 +40,6 @@ def check_destination(source: Path, destination: Path) -> None:
 
 
 def list_images(folder: Path) -> list[Path]:
-    """Image files directly in `folder`, sorted by name."""
     return sorted(path for path in folder.iterdir() if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES)
 
 
@@ -136,15 +130,8 @@ class DatasetWriter:
         path.write_bytes(encode_png(image))
 
     def add_frame(self, index: int, rgb: np.ndarray, camera_to_world: np.ndarray, labels: dict[str, np.ndarray]) -> str:
-        """Write one frame and return its `file_path`.
-
-        Args:
-            index: number in the written file names (`frame_XXXXX.png`), the frame's index in its source.
-            rgb: (H, W, 3) uint8 image.
-            camera_to_world: (4, 4) pose in nerfstudio's OpenGL convention.
-            labels: property name (or "depth") -> label already in our encoding: (H, W) uint16 depth, (H, W) uint8
-                semantics / shading / keypoints / edges, (H, W, 3) uint8 normals.
-        """
+        """Write frame `index` (`frame_XXXXX.png`) and return its `file_path`: (H, W, 3) uint8 `rgb`, a 4x4 OpenGL
+        pose, and `labels` by property (or "depth") already encoded (uint16 depth, uint8 maps, (H, W, 3) normals)."""
         name = f"frame_{index:05d}.png"
         frame: dict[str, Any] = {"file_path": f"images/{name}", "transform_matrix": camera_to_world.tolist()}
         self._write_png(frame["file_path"], rgb)
@@ -164,8 +151,7 @@ class DatasetWriter:
         semantic_colors: Sequence[tuple[int, int, int]] | None = None,
         provenance_key: str = "ssnerf_import",
     ) -> Path:
-        """Write transforms.json: `intrinsics` (see `centred_pinhole`), class list, split file lists, the frames, and
-        under `provenance_key` where they came from."""
+        """Write transforms.json: `intrinsics`, classes, splits, frames, and `provenance` under `provenance_key`."""
         transforms: dict[str, Any] = dict(intrinsics)
         if semantic_classes is not None:
             transforms["semantic_classes"] = list(semantic_classes)

@@ -1,8 +1,5 @@
-"""Label makers: how one property's label image is made from what a frame offers (its image, depth, normals, class
-ids). The registry gives each property its maker (`PropertySpec.label_maker`), so `ssnerf-label` on real data and
-`ssnerf-make-scene` on the generated room make every label with the same code, and a new property with a maker is
-labelled by both without touching either.
-"""
+"""Label makers: how one property's label image is made from what a frame offers (image, depth, normals, class ids).
+Each is the registry's `PropertySpec.label_maker`, shared by `ssnerf-label` and `ssnerf-make-scene`."""
 
 from __future__ import annotations
 
@@ -40,8 +37,8 @@ class LabelOptions:
     normals_source: tyro.conf.Suppress[Literal["depth", "exact"]] = "depth"
     """Normal label from the depth map (the paper's), or the frame's given exact normals (a generated scene's)."""
     semantics_grow: float = 0.0
-    """Grow sparse class ids (clicks, scribbles) over the image segments they fall in: the graph segmentation's scale
-    (300 suits 128x96 frames; larger makes larger segments); 0 copies the class ids as they are."""
+    """Grow sparse class ids (clicks) over their image segments at this graph segmentation scale (300 suits 128x96
+    frames); 0: copy them as they are."""
     semantics_from: tyro.conf.Suppress[str] = "the frame's class ids"
     """Where the class ids come from, for the provenance line."""
 
@@ -59,8 +56,8 @@ class FrameSources:
     depth: Optional[Callable[[], np.ndarray]] = None
     """The frame's z-depth map (any unit; it may be another resolution of the same aspect), read when asked."""
     normals_smoothing: int = 0
-    """Radius (pixels) over which normals made from `depth` are averaged where the image is uniform: set for depth
-    rendered by a radiance field, whose pixel-scale bumps are not geometry; 0 for sensor depth."""
+    """Radius (pixels) to average normals from `depth` over where the image is uniform: for rendered depth, whose
+    pixel-scale bumps are not geometry; 0 for sensor depth."""
     normals: Optional[np.ndarray] = None
     """(H, W, 3) camera-frame unit normals, NaN where unknown: given with the frame, or made by a maker."""
     semantics: Optional[Callable[[], np.ndarray]] = None
@@ -118,8 +115,8 @@ class SemanticsCopy(LabelMaker):
 
 
 class NormalsFromDepth(LabelMaker):
-    """Camera-frame unit normals by finite differences of the back-projected depth map (the paper's SN), stored as
-    (n + 1) / 2, alpha 0 where depth gives none; or, with `normals_source == "exact"`, the frame's given normals."""
+    """Camera-frame unit normals by finite differences of back-projected depth (the paper's SN) as (n + 1) / 2,
+    alpha 0 where none; or the frame's given normals (`normals_source == "exact"`)."""
 
     reads = ("depth",)
     provides = "normals"

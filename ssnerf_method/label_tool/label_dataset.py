@@ -1,16 +1,9 @@
 """`ssnerf-label`'s engine: derive property labels for every frame of a posed nerfstudio dataset.
 
-Per frame, each property with a label maker (`PropertySpec.label_maker`, in registry order) either writes a label
-image (under `DATA/ssnerf_labels/<property>/`) and sets the frame's file key, keeps a label the frame already lists
-(and hands it to the makers after it, as given normals feed shading), or skips with a reason. Semantics are never
-derived: they come from annotations (`--annotations`: COCO, labelme, or mask PNGs; `annotations.py`) or are copied
-(and converted from colours if need be) from `--semantics-dir`. Frames without depth get it rendered by a trained
-model with `--depth-from` (`rendered_depth.py`), so normals and shading are made from it as from sensor depth.
-
-A Blender-synthetic folder (no transforms.json, but `transforms_{train,val,test}.json`) is read as nerfstudio's
-`blender-data` reads it and gets a new transforms.json. Nothing is written unless every frame succeeds: labels go
-through `Staging`, the transforms file is replaced atomically after a one-time backup (`transforms.json.orig`) or
-written as a new file. Every input (annotations, the depth model) is read and checked before the first frame.
+Per frame, each property's label maker (registry order) writes a label under `DATA/ssnerf_labels/<property>/`, keeps
+one the frame lists (feeding later makers), or skips with a reason. Semantics come only from `--annotations` or
+`--semantics-dir`; `--depth-from` renders missing depth; a Blender-synthetic folder gets a new transforms.json. All or
+nothing: inputs are checked first, labels go through `Staging`, transforms.json is replaced atomically (`.orig` backup).
 """
 
 from __future__ import annotations
@@ -55,34 +48,27 @@ class LabelDatasetBase:
     data: tyro.conf.Positional[Path]
     """Dataset folder holding transforms.json (or the path of a transforms .json file)."""
     output: Optional[str] = None
-    """Write the labelled transforms to this new file instead of updating transforms.json in place (in place, the
-    original is first copied to transforms.json.orig, once). A bare name goes in the dataset folder; a path with a
-    folder (e.g. a writable copy's `../labelled/transforms.json`) gets the labels beside it and file paths that point
-    back at the dataset."""
+    """Write to this new transforms file instead of in place (which backs up transforms.json.orig once); a bare name
+    goes in the dataset folder, a path elsewhere gets the labels beside it and paths back to the dataset."""
     label_options: Annotated[LabelOptions, tyro.conf.arg(name="")] = field(default_factory=LabelOptions)
     """The label makers' settings."""
     annotations: Optional[Path] = None
-    """Semantic annotations of any subset of frames: a COCO .json (polygons or RLE), a labelme .json or a folder of
-    them, or a folder of mask PNGs (as --semantics-dir). Classes are matched by name (new names appended); pixels no
-    shape covers are unlabelled; where shapes overlap, the smaller wins. Replaces the semantics of the frames it
-    annotates."""
+    """Semantic annotations of any frames (replacing theirs): COCO or labelme .json (or a folder of them), or mask
+    PNGs as --semantics-dir. Classes match by name; uncovered pixels are unlabelled; overlaps go to the smaller."""
     semantics_dir: Optional[Path] = None
     """Folder of per-frame semantic labels named like the images (same relative path, .png): class ids in an 8/16-bit
     single-channel PNG (255 = unlabelled), or colours listed in transforms.json's semantic_colors."""
     semantic_classes: Optional[List[str]] = None
-    """Class names (id = index), written to the transforms file even without labels (e.g. before painting strokes in
-    the viewer); with --annotations, the fixed list its classes must be in. Default: transforms.json's, then the
-    annotations' new names (or class_0..class_N for --semantics-dir)."""
+    """Class names (id = index), written even without labels (e.g. for viewer strokes); fixed for --annotations.
+    Default: transforms.json's, then new annotation names (class_0..class_N for --semantics-dir)."""
     depth_from: Optional[Path] = None
     """config.yml of an SS-NeRF trained on this dataset (e.g. a short RGB-only ssnerf-lite): frames without
     depth_file_path get its rendered z-depth, from which normals and shading are made as from sensor depth."""
     depth_from_scale: float = 0.25
-    """Resolution of the rendered depth, as a fraction of each image's (rendering is ~2,000 rays/s on a CPU). A short
-    run's depth is bumpy at the pixel scale, so coarser depth gives truer normals (docs, "Captures without depth")."""
+    """Rendered depth's resolution, as a fraction of each image's (coarser is faster and smooths pixel-scale bumps)."""
     depth_from_smoothing: float = 0.1
-    """Normals from rendered depth are averaged over this fraction of the image's shorter side where the image is
-    uniform (OpenCV's guided filter; the image's edges stay the normals' edges); 0 turns it off. Median error 13.5
-    degrees against 20.9 without (1000-step RGB-only ssnerf-lite, walkthrough scene)."""
+    """Average normals from rendered depth over this fraction of the image's shorter side where the image is uniform
+    (guided filter, keeping the image's edges); 0: off."""
     relabel: bool = False
     """Recompute labels a frame already lists (default: keep them, e.g. given normals or an outside annotator's)."""
     workers: int = 2
@@ -167,8 +153,7 @@ class LabelInputs:
     annotated: Dict[str, Path] = field(default_factory=dict)
     """Frame (file_path) to the file that annotates it, for every frame the annotations or masks cover."""
     replace_annotated: bool = False
-    """Whether labels made from `annotated` replace those a frame lists (--annotations: an edited annotation takes
-    effect without --relabel; --semantics-dir keeps them, as any source does)."""
+    """Whether labels from `annotated` replace a frame's own (--annotations: yes, without --relabel)."""
     classes: Optional[List[str]] = None
     """The class list to write, when known before labelling (annotations, --semantic-classes)."""
     depth_model: Optional[DepthFromModel] = None
@@ -190,8 +175,7 @@ def _depth_readers() -> List[PropertySpec]:
 
 
 def frames_needing_depth(config: LabelDatasetBase, transforms: Transforms) -> List[str]:
-    """Frames (file paths) that --depth-from renders: those without depth_file_path for which a maker that reads
-    depth will run (it is on, and the frame does not list its label, or --relabel)."""
+    """File paths of the frames --depth-from renders: no depth_file_path, and a depth-reading maker will run."""
     if config.depth_from is None:
         return []
     return [frame["file_path"] for frame in transforms.frames if "depth_file_path" not in frame and any(
@@ -199,8 +183,7 @@ def frames_needing_depth(config: LabelDatasetBase, transforms: Transforms) -> Li
 
 
 def prepare_inputs(config: LabelDatasetBase, transforms: Transforms) -> LabelInputs:
-    """Read and check --annotations, --semantic-classes and --depth-from (loading the model only when some frame
-    needs its depth), each fault one line naming the file."""
+    """Read and check --annotations, --semantic-classes and --depth-from (the model only if some frame needs it)."""
     inputs = LabelInputs(masks=config.semantics_dir, classes=list(config.semantic_classes or []) or None)
     if config.label_options.semantics_grow < 0:
         raise DatasetInputError(f"--semantics-grow {config.label_options.semantics_grow:g}: must be 0 (off) or more. "
@@ -244,8 +227,7 @@ def frame_sources(
     transforms: Transforms, frame: Dict, config: LabelDatasetBase, rays: RayCache, inputs: LabelInputs,
     on_depth: Optional[Callable[[], None]] = None,
 ) -> FrameSources:
-    """What the makers may read of one frame: its image, its camera's rays, and (read when asked) its depth map (or
-    the depth rendered by --depth-from) and its annotation."""
+    """What the makers may read of one frame: image, rays, and (lazily) depth (or --depth-from's) and annotation."""
     rgb = read_image(transforms.file(frame["file_path"]), "image")
     rgb = rgb[..., :3] if rgb.ndim == 3 else np.repeat(rgb[..., None], 3, axis=-1)
     if rgb.dtype != np.uint8:
@@ -294,8 +276,7 @@ def label_frame(
     transforms: Transforms, frame: Dict, config: LabelDatasetBase, staging: Staging, rays: RayCache,
     inputs: LabelInputs, on_depth: Optional[Callable[[], None]] = None,
 ) -> Tuple[Dict[str, str], Dict[str, str], List[int]]:
-    """Label one frame. Returns the keys to set, each property's outcome, and the class ids its labels use; labels
-    made from a source given for the frame (`LabelInputs.given`) replace those it lists."""
+    """Label one frame: the keys to set, each outcome, the class ids used (`LabelInputs.given` sources replace)."""
     sources = frame_sources(transforms, frame, config, rays, inputs, on_depth)
     given = inputs.given(frame)
     height, width = sources.rgb.shape[:2]
@@ -330,8 +311,7 @@ def label_dataset(
     config: LabelDatasetBase, transforms: Transforms, on_frame: Optional[Callable[[], None]] = None,
     on_depth: Optional[Callable[[], None]] = None,
 ) -> LabelReport:
-    """Label every frame of `transforms` (see the module docstring); all or nothing. `on_frame` is called after each
-    frame, `on_depth` after each depth render of --depth-from."""
+    """Label every frame of `transforms`, all or nothing; `on_frame` / `on_depth` report progress."""
     output = output_path(config.output, transforms)
     if config.output is not None and output.exists():
         raise DatasetInputError(f"{output}: exists. Pick a new --output name or remove that file.")
@@ -408,8 +388,7 @@ SOURCE_RECORDS: Dict[Source, str] = {"semantics": "annotations", "depth": "depth
 def _source_records(
     config: LabelDatasetBase, inputs: LabelInputs, made: Dict[Source, Set[str]], written: Dict[str, str]
 ) -> Dict[str, Any]:
-    """Where this run's annotations and rendered depth came from, for the frames whose labels were made from them
-    (named as the output lists them: `written` maps the input's file paths)."""
+    """Where this run's annotations and rendered depth came from, per frame as the output names it (`written`)."""
     records: Dict[str, Any] = {}
     source = inputs.annotations.source if inputs.annotations is not None else inputs.masks
     if source is not None and made.get("semantics"):

@@ -1,10 +1,7 @@
 """z-depth rendered by a trained SS-NeRF at a dataset's frames, for `ssnerf-label --depth-from CONFIG`.
 
-A capture without a depth sensor (`ns-process-data images|video`) then gets normals and shading from the same code as
-sensor depth (`labels/makers.py::NormalsFromDepth` reads `FrameSources.depth`). Each frame is rendered at its pose in
-transforms.json, moved into the model's frame the way nerfstudio's dataparser moved the training poses (its
-orientation, centring and scale, after undoing the file's own `applied_transform` / `applied_scale`), with the
-frame's own intrinsics scaled by `resolution_scale`; the depth is returned in the transforms file's units.
+So captures without depth get normals and shading as from sensor depth. Each pose is moved into the model's frame as
+the dataparser moved the training poses (undoing `applied_transform` / `applied_scale`); depth is in the file's units.
 """
 
 from __future__ import annotations
@@ -33,15 +30,13 @@ from ssnerf_method.rendering.depth import rendered_z_depth
 MIN_ACCUMULATION = 0.5
 """Pixels whose rendered opacity is below this get no depth (empty space, e.g. sky: their depth means nothing)."""
 POSE_TOLERANCE = 1e-3
-"""Largest difference (model units) between a training camera of the model and the same frame's pose in the dataset
-mapped into the model's frame; more means the model was trained on other poses."""
+"""Largest gap (model units) between a training camera and its frame's moved pose; more: trained on other poses."""
 COLMAP_APPLIED_TRANSFORM = [[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, -1, 0]]
 """nerfstudio's `applied_transform` for a dataset without one that holds `colmap/sparse/0` (its dataparser's rule)."""
 
 
 def checked_config(path: Path) -> TrainerConfig:
-    """The trainer config at `path`, refused with one line unless it is a trained SS-NeRF's (file, method,
-    checkpoint); reads no data and no weights."""
+    """The trainer config at `path` if it is a trained SS-NeRF's (else one line why); reads no data or weights."""
     if not path.is_file():
         raise UserError(f"{path}: no such file. Pass the config.yml of a trained SS-NeRF run "
                         "(outputs/<experiment>/ssnerf-lite/<timestamp>/config.yml).")
@@ -78,9 +73,8 @@ def applied_transform(meta: Dict, folder: Path) -> Tuple[Float[np.ndarray, "4 4"
 def file_to_model(
     outputs: DataparserOutputs, meta: Dict, folder: Path
 ) -> Tuple[Float[np.ndarray, "4 4"], float]:
-    """The rigid transform and scale that take a pose of the dataset's transforms file into the model's frame:
-    `dataparser_transform` maps the original (pre-`applied_transform`) frame, so the file's own transform is undone
-    first, and `dataparser_scale` includes `applied_scale`, so it is divided out."""
+    """Rigid transform and scale from the transforms file's frame to the model's: `dataparser_transform` maps the
+    pre-`applied_transform` frame, and `dataparser_scale` includes `applied_scale`, so both are undone."""
     transform = np.eye(4)
     transform[:3] = outputs.dataparser_transform.double().numpy()
     applied, applied_scale = applied_transform(meta, folder)
@@ -111,8 +105,7 @@ class DepthFromModel:
         self._lock = threading.Lock()
 
     def z_depth(self, transforms: Transforms, frame: Dict, resolution_scale: float) -> Float[np.ndarray, "h w"]:
-        """The frame's z-depth in the transforms file's units at its resolution times `resolution_scale`; NaN where
-        the render is nearly transparent."""
+        """The frame's z-depth (file units) at `resolution_scale`; NaN where the render is nearly transparent."""
         camera = frame_camera(transforms, frame)
         pose = move_pose(np.vstack([frame["transform_matrix"][:3], [0.0, 0.0, 0.0, 1.0]]), self.transform, self.scale)
         camera.camera_to_worlds = torch.from_numpy(pose[None, :3]).float()
@@ -125,7 +118,6 @@ class DepthFromModel:
         return np.where(opaque & np.isfinite(depth), depth, np.nan)
 
     def describe(self, resolution_scale: float) -> Dict:
-        """The provenance of depth rendered by this model."""
         return {"config": str(self.config_path.resolve()), "step": self.step, "resolution_scale": resolution_scale,
                 "min_accumulation": self.min_accumulation}
 

@@ -1,7 +1,6 @@
-"""A model config.yml saved before the current layout loads into it: `ns-eval`, `ns-render`, `ns-viewer` and our
-tools read a run's config.yml with PyYAML, which hands `SSNeRFModelConfig.__setstate__` the saved fields. Fields that
-moved into a nested config are put there; fields of options since removed are dropped; fields a run saved before
-they existed take their defaults."""
+"""A model config.yml saved in an older layout loads into the current one (PyYAML hands the saved fields to
+`SSNeRFModelConfig.__setstate__`): moved fields go to their nested config, removed options are dropped, and fields
+saved before they existed take their defaults."""
 
 from __future__ import annotations
 

@@ -142,11 +142,9 @@ class SSNeRFModelConfig(ModelConfig):
     regularisers: Dict[str, RegulariserConfig] = field(default_factory=default_regularisers)
     """The optional training terms by name (`model/regularisers/`); all off (`mult` 0) but the semantic affinity."""
     spare_classes: int = 0
-    """Semantic class slots beyond the dataset's classes, for classes added in the viewer's Label panel while
-    training (a new class takes the next free slot). 0: classes can only come from the dataset."""
+    """Class slots beyond the dataset's, for classes added in the viewer's Label panel while training."""
     encoder_init: Optional[Path] = None
-    """Checkpoint (.ckpt) of a trained SS-NeRF of the same method whose F_enc initialises this one's at the first step;
-    decoders, heads and proposal networks start fresh (the paper's knowledge transfer, Table 5)."""
+    """A trained SS-NeRF's checkpoint (same method) whose F_enc initialises this one's (the paper's Table 5)."""
 
     def __setstate__(self, state: Dict[str, Any]) -> None:
         """A config.yml saved before the current layout loads into it (`config_upgrade.py`)."""

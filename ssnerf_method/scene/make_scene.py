@@ -1,14 +1,8 @@
 """`ssnerf-make-scene OUT_DIR`: render the embedded default SS-NeRF scene as a nerfstudio dataset with property labels.
 
-A camera moves through the procedural room (`room.py`) along one of two trajectories: `loop`, a small closed loop in
-the middle of the room looking outwards (the demo's: dense, 60 frames, every 5th held out), or `walkthrough`, a long
-hand-held-like walk across the room past the furniture, with varying height, pitch and heading, sampled as sparsely
-as the paper's Replica scenes (50 frames, every 8th held out from frame 0: the authors' `llffhold = 8`). Each frame
-gets an anti-aliased RGB image (2x2 supersampling) and, at pixel centres, z-depth, semantics and camera-frame normals
-from the ray caster; the normal label is either those exact normals or, as the paper made it, derived from the
-written depth map by finite differences (`--normals from-depth`, `ssnerf-label`'s code); shading, keypoint and edge
-labels come from `ssnerf_method.label_makers` (shading from the true normals, keypoints and edges from the written 8-bit
-RGB). Output is deterministic for a seed.
+A camera follows a `loop` (dense, the demo's) or a `walkthrough` (sparse as the paper's Replica scenes) through the
+procedural room (`room.py`). Each frame gets supersampled RGB and, at pixel centres, the ray caster's z-depth, classes
+and camera-frame normals; the other labels come from `ssnerf_method.label_makers`. Deterministic for a seed.
 """
 
 from __future__ import annotations
@@ -45,9 +39,7 @@ SPLITS: Dict[str, Dict[str, int]] = {
     "loop": {"num_frames": 60, "test_every": 5, "test_offset": 2},
     "walkthrough": {"num_frames": 50, "test_every": 8, "test_offset": 0},
 }
-"""Each trajectory's default frame count and held-out frames (frame i is a test frame when
-i % test_every == test_offset): the loop's every 5th from frame 2; the walkthrough's every 8th from frame 0, as the
-paper's released scenes (50 frames, `llffhold = 8`)."""
+"""Each trajectory's default frame count and test frames (i % test_every == test_offset; walkthrough: llffhold)."""
 
 LABEL_DIRS = ("images", "depth", *(spec.name for spec in labelled_properties()))
 """Sub-folders written per frame; `images` holds RGB, the others the label of the same name."""
@@ -68,11 +60,9 @@ class MakeSceneConfig:
     seed: int = 0
     """Seed of the trajectory's shape and of the colour jitter (same seed, same bytes)."""
     test_every: Optional[int] = None
-    """Frame i is a test (and val) frame when i % test_every == test_offset (default: 5 for the loop, 8 for the
-    walkthrough)."""
+    """Frame i is a test (and val) frame when i % test_every == test_offset (default: loop 5, walkthrough 8)."""
     path_frames: int = 120
-    """Frames of the fly-through along the same loop written to camera_paths/fly_through.json (for `ns-render
-    camera-path` and the viewer's render panel); 0 writes none."""
+    """Frames of the fly-through written to camera_paths/fly_through.json (for `ns-render camera-path`); 0: none."""
     path_seconds: float = 5.0
     """Duration of the fly-through video."""
     overwrite: bool = False
@@ -135,9 +125,7 @@ WALKTHROUGH_WAYPOINTS = np.array([
     (2.5, 1.5), (2.4, 0.0), (1.6, -0.9), (0.5, -1.6), (-0.8, -1.9), (-2.0, -1.3), (-2.3, 0.0), (-1.9, 1.4),
     (-0.7, 1.9), (0.6, 1.6), (1.3, 0.6), (0.4, -0.3), (-0.8, 0.3),
 ])
-"""(x, z) in metres of the walk across the room: from the window corner past the bed, the shelf, the sofa, the TV and
-the table, ending in the middle. At the walk's heights (above 1.15 m) only the walls, wardrobe, shelf and plant
-stand in the way, and every waypoint keeps clear of them."""
+"""(x, z) in metres of the walk past the furniture, clear of anything above its 1.15 m minimum height."""
 
 
 def camera_path(trajectory: Trajectory, num_frames: int, seed: int) -> List[np.ndarray]:
@@ -146,13 +134,8 @@ def camera_path(trajectory: Trajectory, num_frames: int, seed: int) -> List[np.n
 
 
 def walkthrough_path(num_frames: int, seed: int) -> List[np.ndarray]:
-    """Camera-to-world poses of a hand-held-like walk across the room, evenly spaced along its length (about 16 m).
-
-    A Catmull-Rom spline through `WALKTHROUGH_WAYPOINTS` (each moved by up to ~0.1 m per seed). The camera heads
-    where it walks, swinging up to ~40° left and right to look at the furniture it passes, with its height between
-    1.2 and 1.7 m and its pitch between about −25° and +5°, so consecutive frames are far apart in position and
-    angle and the furniture occludes parts of the room from some views.
-    """
+    """Camera-to-world poses evenly spaced along a Catmull-Rom spline through `WALKTHROUGH_WAYPOINTS` (jittered per
+    seed), heading where it walks with swinging yaw, pitch and height: frames far apart, with occlusions."""
     rng = np.random.default_rng([seed, 2])
     points = WALKTHROUGH_WAYPOINTS + np.clip(rng.normal(0.0, 0.06, WALKTHROUGH_WAYPOINTS.shape), -0.1, 0.1)
     padded = np.concatenate([2 * points[:1] - points[1:2], points, 2 * points[-1:] - points[-2:-1]])
@@ -182,11 +165,7 @@ def walkthrough_path(num_frames: int, seed: int) -> List[np.ndarray]:
 
 
 def loop_path(num_frames: int, seed: int) -> List[np.ndarray]:
-    """Camera-to-world poses along a closed elliptical loop around the middle of the room, clear of furniture.
-
-    The camera looks outwards from the loop's centre, swinging left/right and tilting slightly up/down, so the
-    frames see every wall and piece of furniture while consecutive frames overlap strongly.
-    """
+    """Camera-to-world poses on a closed loop mid-room, looking outwards: every wall seen, frames overlapping."""
     rng = np.random.default_rng([seed, 1])
     phase = rng.uniform(0.0, 2 * np.pi)
     radius_x, radius_z = np.array([0.9, 0.75]) * rng.uniform(0.9, 1.1, 2)
@@ -226,16 +205,14 @@ def render_view(room: Room, camera: PinholeCamera) -> RenderedView:
 
 
 def label_options(config: MakeSceneConfig) -> LabelOptions:
-    """The label makers' settings for the generated scene: their defaults (`ssnerf-label`'s), and the normal label
-    from the ray caster's exact normals or from the written depth."""
+    """The label makers' defaults (`ssnerf-label`'s), with the normal label from exact normals or written depth."""
     return LabelOptions(
         normals_source="exact" if config.normals == "exact" else "depth", semantics_from="the ray caster's class ids",
     )
 
 
 def view_sources(view: RenderedView, rgb: np.ndarray, depth: np.ndarray, rays: np.ndarray) -> FrameSources:
-    """What the label makers read of a rendered frame: the written RGB and millimetre depth, the camera's unit rays,
-    the true normals (the shading label's, and the normal label's when exact) and the ray caster's class ids."""
+    """What the label makers read of a rendered frame: written RGB and mm depth, rays, true normals, class ids."""
     return FrameSources(rgb=rgb, rays=lambda scale: rays, depth=lambda: depth.astype(np.float64),
                         normals=view.normals, semantics=lambda: view.semantics)
 

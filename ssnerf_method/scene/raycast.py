@@ -1,10 +1,7 @@
 """Vectorised numpy ray caster for the procedural room: boxes, vertical cylinders and spheres.
 
-Rays from one common origin (a pinhole camera's centre) are cast for many pixels at once, one numpy pass per
-primitive; directions are handled as (3, N) component rows, which keeps every step an elementwise operation on
-contiguous arrays. Camera rays are built with a camera-frame z component of -1 (nerfstudio / OpenGL convention:
-x right, y up, looking along -z), so the ray parameter `t` of a hit *is* its z-depth (distance along the camera's
-viewing axis), with no normalisation needed.
+Rays share one origin and are cast one numpy pass per primitive, directions as contiguous (3, N) rows. Camera rays
+have camera-frame z = -1 (OpenGL: x right, y up, looking along -z), so a hit's ray parameter `t` is its z-depth.
 """
 
 from __future__ import annotations
@@ -17,10 +14,8 @@ import numpy as np
 Vec3 = Tuple[float, float, float]
 
 Texture = Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray]
-"""Albedo of hit points: `(local_points (N,3), world_normals (N,3), extent (3,)) -> rgb (N,3) in [0,1]`.
-
-`local_points` are relative to the primitive's bounding-box minimum corner, so a pattern moves with its object.
-"""
+"""Albedo of hit points: `(local_points (N,3), world_normals (N,3), extent (3,)) -> rgb (N,3) in [0,1]`; points are
+relative to the bounding box's minimum corner, so a pattern moves with its object."""
 
 _EPS = 1e-6
 
@@ -168,11 +163,8 @@ class RayHits:
 
 
 def cast_rays(primitives: Sequence[Primitive], origin: np.ndarray, directions: np.ndarray) -> RayHits:
-    """Intersect every ray (common `origin` (3,), `directions` (N, 3)) with every primitive; describe the nearest hit.
-
-    A shape's `intersect(origin, directions, inverse)` gets the directions and their reciprocals as (3, N) rows and
-    returns the (N,) ray parameter of its first hit in front of the origin, `inf` where it is missed.
-    """
+    """The nearest hit of each ray (common `origin` (3,), `directions` (N, 3)); a shape's `intersect` gets (3, N)
+    directions and reciprocals and returns each ray's first hit parameter in front of the origin, or `inf`."""
     origin = np.asarray(origin, dtype=np.float64)
     rows = np.ascontiguousarray(np.where(np.abs(directions) < 1e-12, 1e-12, directions).T)  # finite reciprocals
     inverse = 1.0 / rows
@@ -217,11 +209,8 @@ class PinholeCamera:
     """(4, 4) camera-to-world matrix."""
 
     def rays(self, pixel_x: np.ndarray, pixel_y: np.ndarray) -> Tuple[np.ndarray, np.ndarray]:
-        """Camera centre (3,) and world ray directions (N, 3) through continuous pixel coordinates.
-
-        The centre of pixel column j is at x = j + 0.5. Directions are not normalised: their camera-frame z component
-        is -1, so a hit's `t` is its z-depth.
-        """
+        """Camera centre (3,) and world ray directions (N, 3) through continuous pixel coordinates (column j's centre
+        at x = j + 0.5); directions have camera-frame z = -1, so a hit's `t` is its z-depth."""
         cam = np.stack(
             [(pixel_x - self.cx) / self.fx, -(pixel_y - self.cy) / self.fy, -np.ones_like(pixel_x)], axis=-1
         ).reshape(-1, 3)
@@ -230,11 +219,7 @@ class PinholeCamera:
 
 
 def pixel_grid(width: int, height: int, samples_per_side: int = 1) -> Tuple[np.ndarray, np.ndarray]:
-    """Continuous pixel coordinates of a regular sub-pixel grid, shaped (height, width, samples_per_side**2).
-
-    With one sample per side these are the pixel centres; with `s` samples, the centres of an s x s subdivision
-    of each pixel (for supersampled anti-aliasing: average over the last axis).
-    """
+    """Coordinates (height, width, s**2) of the centres of an s x s subdivision of each pixel (s: samples_per_side)."""
     offsets = (np.arange(samples_per_side) + 0.5) / samples_per_side
     sub_y, sub_x = np.meshgrid(offsets, offsets, indexing="ij")
     rows, cols = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")

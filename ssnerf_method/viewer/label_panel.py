@@ -1,10 +1,7 @@
 """The viewer's Label panel: paint classes on the render, and every painted pixel becomes a labelled ray.
 
-With "Paint" on, a click paints a disc of the brush's radius (nerfstudio's `ViewerControl` "click" callback) and a
-drag paints a box ("rect-select"), in the class picked. The painted pixels are the rays of the viewer's camera at
-the training images' height, and each stroke is appended to the dataset's strokes file (`data/strokes.py`) at once,
-so a crash loses nothing. While `ns-train` runs, the datamanager mixes stroke rays into every batch (semantic loss
-only) and the semantics output changes as you watch; in `ns-viewer`, strokes are saved for the next training.
+A click paints a brush disc, a drag a box, as rays of the viewer's camera at the training images' height; each stroke
+is saved at once (`data/strokes.py`). `ns-train` mixes them into every batch; `ns-viewer` keeps them for the next run.
 """
 
 from __future__ import annotations
@@ -222,9 +219,7 @@ class LabelPanel(nn.Module):
 
 
 def add_label_panel(model: nn.Module, store: StrokeStore, frame: WorldFrame, image_height: int, training: bool) -> None:
-    """Put the Label panel on a model that renders classes (its `semantic_classes` panel, `class_names`,
-    `num_classes`, `palette`), as `model.semantic_labelling`: strokes painted there go to `store`; a class added
-    there joins the model's `class_names` and the semantics panel's "Show class"."""
+    """Put the Label panel on a class-rendering model (`semantic_labelling`); new classes join its `class_names`."""
     panel = model.semantic_classes
 
     def new_class(names: List[str]) -> None:

@@ -7,13 +7,7 @@ import importlib
 import pkgutil
 from typing import Dict
 
-from ssnerf_method.model.regularisers.base import (
-    REGULARISERS,
-    PatchRequest,
-    Regulariser,
-    RegulariserConfig,
-    patch_colours,
-)
+from ssnerf_method.model.regularisers.base import REGULARISERS, PatchRequest, Regulariser, RegulariserConfig
 
 
 def discover() -> None:
@@ -30,5 +24,4 @@ def default_regularisers() -> Dict[str, RegulariserConfig]:
     return {name: config() for name, config in REGULARISERS.items()}
 
 
-__all__ = ["REGULARISERS", "PatchRequest", "Regulariser", "RegulariserConfig", "default_regularisers",
-           "discover", "patch_colours"]
+__all__ = ["REGULARISERS", "PatchRequest", "Regulariser", "RegulariserConfig", "default_regularisers", "discover"]

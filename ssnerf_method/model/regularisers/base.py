@@ -1,7 +1,5 @@
-"""What an optional training term is: a config (its weight `mult` and its own settings) and a small class that says
-which extra training outputs it needs and what its loss is. The model calls every active one; nothing else of the
-model knows them, so a new term is a new file in this folder (`__init__.py` finds it) and an unused one is one file
-to delete."""
+"""An optional training term: a config (its weight `mult`, its own settings) and a class that says which extra
+training outputs it needs and what its loss is. The model calls every active one and knows nothing else of them."""
 
 from __future__ import annotations
 
