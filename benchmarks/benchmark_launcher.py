@@ -52,7 +52,7 @@ def quick(folder: Path, *arguments: str) -> float:
     env = {key: value for key, value in os.environ.items() if key != "OMP_NUM_THREADS"}
     env["RAY_AUTH_MODE"] = "disabled"
     start = time.time()
-    subprocess.run([sys.executable, "-m", "ssnerf_method.experiments.benchmark", "--quick", "--output", str(folder),
+    subprocess.run([sys.executable, "-m", "ssnerf_method.cli.benchmark", "--quick", "--output", str(folder),
                     *arguments], env=env, check=True, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     return time.time() - start
 

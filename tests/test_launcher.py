@@ -31,7 +31,7 @@ def driver(output: Path, *arguments: str) -> subprocess.Popen:
     """`ssnerf-benchmark` with the Ray launcher as a user starts it from a terminal: its own process, its own local
     Ray instance (every core of this machine: 2 workers of 1 CPU here)."""
     env = {**os.environ, "OMP_NUM_THREADS": "1", "RAY_AUTH_MODE": "disabled"}
-    command = [sys.executable, "-m", "ssnerf_method.experiments.benchmark", *QUICK, "--output", str(output),
+    command = [sys.executable, "-m", "ssnerf_method.cli.benchmark", *QUICK, "--output", str(output),
                *arguments]
     # Ctrl-C reaches it as in a terminal even when pytest itself was started in the background (where SIGINT is
     # ignored and a child Python would inherit that)

@@ -98,7 +98,7 @@ def test_a_bad_study_preset_names_the_file(tmp_path: Path) -> None:
 def test_the_console_script_says_one_line(tmp_path: Path) -> None:
     path = tmp_path / "bad.yaml"
     path.write_text("stepz: 10\n")
-    done = subprocess.run([sys.executable, "-m", "ssnerf_method.experiments.benchmark", "--preset", str(path)],
+    done = subprocess.run([sys.executable, "-m", "ssnerf_method.cli.benchmark", "--preset", str(path)],
                           capture_output=True, text=True, timeout=300)
     assert done.returncode == 1
     assert done.stderr.strip().splitlines()[-1].startswith(f"ssnerf-benchmark: {path}: `stepz` is not an option")
