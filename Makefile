@@ -4,8 +4,9 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 APT_PACKAGES := ffmpeg chromium
+DEMO_APT_PACKAGES := libusb-1.0-0
 
-.PHONY: demo test docs env system
+.PHONY: demo test docs env system demo-system
 
 env: $(VENV)/.installed
 
@@ -25,7 +26,15 @@ system:
 	echo "installing $(APT_PACKAGES) with apt-get"; \
 	$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $(APT_PACKAGES)
 
-demo: env
+# Debian packages the documented commands need at run time: libusb, which open3d loads (nerfstudio's ns-process-data
+# and ns-export, and ssnerf-export-points, import open3d).
+demo-system:
+	@if dpkg -s $(DEMO_APT_PACKAGES) >/dev/null 2>&1; then exit 0; fi; \
+	if [ "$$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi; \
+	echo "installing $(DEMO_APT_PACKAGES) with apt-get"; \
+	$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $(DEMO_APT_PACKAGES)
+
+demo: env demo-system
 	$(BIN)/ssnerf-demo --output-dir demo_output --overwrite
 
 # The test extras (pytest, ruff), the cluster extra (Ray), so that the tests cover `--launcher ray`, and the docs extra
@@ -42,7 +51,7 @@ $(VENV)/.docs-extras: $(VENV)/.installed
 docs: $(VENV)/.docs-extras
 	$(BIN)/sphinx-build -W --keep-going -q -b html docs docs/_build/html
 
-test: env system $(VENV)/.test-extras
+test: env demo-system system $(VENV)/.test-extras
 	$(BIN)/ruff check ssnerf_method tests scripts benchmarks conftest.py
 	$(MAKE) docs
 	$(BIN)/python -m pytest -q
