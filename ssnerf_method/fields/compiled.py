@@ -100,10 +100,7 @@ class CompileConfig:
     min_steps: int = 300
     """Runs of fewer training steps (the trainer's `max_num_iterations`) stay eager: the compile would not pay off."""
 
-    def apply(self, sampling: Any, device: torch.device, run_steps: int) -> bool:
-        """Compile `sampling`'s networks for training (its `compile_for_training`) when this run should be; returns
-        whether it was asked to."""
-        if not (self.enabled and device.type == "cpu" and run_steps >= self.min_steps):
-            return False
-        sampling.compile_for_training(self.bfloat16_matmuls and native_bfloat16())
-        return True
+    def apply(self, sampling: Any, device: torch.device, run_steps: int) -> None:
+        """Compile `sampling`'s networks for training (its `compile_for_training`) when this run should be."""
+        if self.enabled and device.type == "cpu" and run_steps >= self.min_steps:
+            sampling.compile_for_training(self.bfloat16_matmuls and native_bfloat16())

@@ -4,7 +4,6 @@ saved before they existed take their defaults."""
 
 from __future__ import annotations
 
-from copy import deepcopy
 from typing import Any, Dict, Tuple
 
 from ssnerf_method.fields.compiled import CompileConfig
@@ -37,16 +36,16 @@ REMOVED = ("normals_density_mult", "normals_density_samples", "normals_density_s
 def upgrade_model_state(state: Dict[str, Any]) -> Dict[str, Any]:
     """`state` (a saved config's fields) in the current layout, nested configs at their defaults where not saved."""
     state = dict(state)
-    nested = {"compile": CompileConfig(), "balancing": LossBalancerConfig(), "regularisers": default_regularisers()}
-    for name, default in nested.items():
-        state.setdefault(name, default)
-    state["regularisers"] = {**default_regularisers(), **deepcopy(state["regularisers"])}
+    state.setdefault("compile", CompileConfig())
+    state.setdefault("balancing", LossBalancerConfig())
+    state["regularisers"] = {**default_regularisers(), **state.get("regularisers", {})}  # terms added since: defaults
     for old, path in MOVED.items():
         if old in state:
-            value, *where, last = state.pop(old), *path
+            *where, last = path
             target = state[where[0]]
-            target = target[where[1]] if len(where) > 1 else target
-            setattr(target, last, value)
+            for key in where[1:]:
+                target = target[key]
+            setattr(target, last, state.pop(old))
     if SHARED_PATCHES[0] in state:
         patches = state.pop(SHARED_PATCHES[0])
         for term in SHARED_PATCHES[1]:
