@@ -3,8 +3,8 @@
 PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
-APT_PACKAGES := ffmpeg chromium
-DEMO_APT_PACKAGES := libusb-1.0-0
+APT_PACKAGES := chromium
+DEMO_APT_PACKAGES := libusb-1.0-0 ffmpeg
 
 .PHONY: demo test docs env system demo-system
 
@@ -19,15 +19,15 @@ $(VENV)/.installed: pyproject.toml
 	$(BIN)/pip install --no-compile --force-reinstall --no-deps opencv-contrib-python-headless==4.10.0.84
 	touch $@
 
-# Debian packages the tests use: ffmpeg (ns-render's videos) and chromium (the viewer checked in a browser).
+# Debian packages the tests use: chromium (the viewer checked in a browser).
 system:
-	@if command -v ffmpeg >/dev/null && command -v chromium >/dev/null; then exit 0; fi; \
+	@if command -v chromium >/dev/null; then exit 0; fi; \
 	if [ "$$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi; \
 	echo "installing $(APT_PACKAGES) with apt-get"; \
 	$$SUDO apt-get update -qq && DEBIAN_FRONTEND=noninteractive $$SUDO apt-get install -y -qq --no-install-recommends $(APT_PACKAGES)
 
-# Debian packages the documented commands need at run time: libusb, which open3d loads (nerfstudio's ns-process-data
-# and ns-export, and ssnerf-export-points, import open3d).
+# Debian packages the documented commands need at run time: libusb, which open3d loads (nerfstudio's ns-export and
+# ssnerf-export-points import open3d), and ffmpeg, which ns-render's videos are written with.
 demo-system:
 	@if dpkg -s $(DEMO_APT_PACKAGES) >/dev/null 2>&1; then exit 0; fi; \
 	if [ "$$(id -u)" = 0 ]; then SUDO=; else SUDO=sudo; fi; \

@@ -10,16 +10,47 @@ from rich.table import Table
 
 from nerfstudio.utils.rich_utils import CONSOLE, ItersPerSecColumn
 
-from ssnerf_method.data.transforms import load_transforms
+from ssnerf_method.data.transforms import Transforms, load_transforms
+from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.errors import UserError, exit_with
 from ssnerf_method.label_tool.label_dataset import (
     KEPT,
     LABELLED,
     LabelDatasetConfig,
     LabelReport,
+    check_frames,
     frames_needing_depth,
     label_dataset,
 )
+from ssnerf_method.label_tool.paths import LABEL_FOLDER, output_path
+from ssnerf_method.method_configs import short_run
+
+DEPTH_MODEL_SMOOTHNESS = 0.1
+"""The depth model's `depth_smoothness` regulariser weight (`benchmark_depth_from`: flat walls come out flat)."""
+
+
+def train_depth_model(config: LabelDatasetConfig, transforms: Transforms) -> None:
+    """Without --depth-from, train (or reuse) the RGB-only ssnerf-lite whose rendered depth gives the frames without
+    depth their normals and shading, and point --depth-from at it; nothing when no frame needs it."""
+    if config.depth_from is not None or config.depth_model_steps <= 0:
+        return
+    frames = frames_needing_depth(config, transforms, model=True)
+    if not frames:
+        return
+    check_frames(transforms, config)  # a bad dataset stops here, not after the training
+    folder = (output_path(config.output, transforms).parent / LABEL_FOLDER / "depth_model").resolve()
+    trainer = short_run("ssnerf-lite", transforms.path, folder, config.depth_model_steps)
+    trainer.pipeline.model.properties = ()  # type: ignore[attr-defined]
+    trainer.pipeline.model.regularisers["depth_smoothness"].mult = DEPTH_MODEL_SMOOTHNESS  # type: ignore[attr-defined]
+    trainer.experiment_name, trainer.timestamp = "rgb", f"steps{config.depth_model_steps}"
+    checkpoint = trainer.get_checkpoint_dir() / f"step-{config.depth_model_steps - 1:09d}.ckpt"
+    if not checkpoint.is_file():
+        CONSOLE.rule(f"{len(frames)} frames have no depth: training an RGB-only ssnerf-lite for "
+                     f"{config.depth_model_steps} steps to render it (--depth-model-steps)")
+        train_in_process(trainer)
+    else:
+        CONSOLE.print(f"Rendering the depth of {len(frames)} frames with {trainer.get_base_dir()}", highlight=False)
+    config.depth_from = trainer.get_base_dir() / "config.yml"
 
 
 def report_table(report: LabelReport, num_frames: int) -> Table:
@@ -39,6 +70,7 @@ def main(config: LabelDatasetConfig) -> LabelReport:
     per-property report."""
     transforms = load_transforms(config.data)
     start = time.perf_counter()
+    train_depth_model(config, transforms)
     progress = Progress(TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(show_speed=True),
                         ItersPerSecColumn(suffix="frames/s"), TimeRemainingColumn(elapsed_when_finished=True,
                                                                                   compact=True))

@@ -64,6 +64,10 @@ class LabelDatasetBase:
     depth_from: Optional[Path] = None
     """config.yml of an SS-NeRF trained on this dataset (e.g. a short RGB-only ssnerf-lite): frames without
     depth_file_path get its rendered z-depth, from which normals and shading are made as from sensor depth."""
+    depth_model_steps: int = 1000
+    """Without --depth-from, frames without depth_file_path (a photo capture) get normals and shading from the depth
+    of an RGB-only ssnerf-lite that ssnerf-label trains on the images for this many steps first (kept in
+    ssnerf_labels/depth_model/ and reused); 0: those frames get no normals or shading."""
     depth_from_scale: float = 0.25
     """Rendered depth's resolution, as a fraction of each image's (coarser is faster and smooths pixel-scale bumps)."""
     depth_from_smoothing: float = 0.1
@@ -106,7 +110,7 @@ class LabelReport:
         return self.outcomes.get(name, Counter())[LABELLED]
 
 
-def _check_frames(transforms: Transforms, config: LabelDatasetBase) -> None:
+def check_frames(transforms: Transforms, config: LabelDatasetBase) -> None:
     """Before any work: the dataset passes validation (the labels it keeps included), and label paths are unique."""
     replaced = [spec.name for spec in labelled_properties() if config.enabled(spec.name)] if config.relabel else []
     validate_transforms(transforms.folder, transforms.path, transforms.meta, skip_labels=replaced).raise_if_faulty(
@@ -174,9 +178,10 @@ def _depth_readers() -> List[PropertySpec]:
     return [spec for spec in labelled_properties() if "depth" in spec.label_maker.reads]
 
 
-def frames_needing_depth(config: LabelDatasetBase, transforms: Transforms) -> List[str]:
-    """File paths of the frames --depth-from renders: no depth_file_path, and a depth-reading maker will run."""
-    if config.depth_from is None:
+def frames_needing_depth(config: LabelDatasetBase, transforms: Transforms, model: bool = False) -> List[str]:
+    """File paths of the frames --depth-from renders: no depth_file_path, and a depth-reading maker will run (with
+    `model`, whether or not a --depth-from model is given yet)."""
+    if config.depth_from is None and not model:
         return []
     return [frame["file_path"] for frame in transforms.frames if "depth_file_path" not in frame and any(
         config.enabled(spec.name) and (spec.file_key not in frame or config.relabel) for spec in _depth_readers())]
@@ -315,7 +320,7 @@ def label_dataset(
     output = output_path(config.output, transforms)
     if config.output is not None and output.exists():
         raise DatasetInputError(f"{output}: exists. Pick a new --output name or remove that file.")
-    _check_frames(transforms, config)
+    check_frames(transforms, config)
     inputs = prepare_inputs(config, transforms)
     report = LabelReport(transforms_path=output)
     if inputs.annotations is not None and inputs.annotations.skipped:

@@ -25,6 +25,7 @@ from ssnerf_method.label_makers.shading import camera_ray_directions
 from ssnerf_method.properties import labelled_properties
 from ssnerf_method.scene.raycast import PinholeCamera, cast_rays, pixel_grid
 from ssnerf_method.scene.room import Room, build_room
+from ssnerf_method.scene.textures import surface_grain
 
 HFOV_DEG = 75.0
 """Horizontal field of view of the pinhole camera."""
@@ -75,6 +76,9 @@ class MakeSceneConfig:
     the paper derived them (`from-depth`; pixels at depth discontinuities are left unlabelled)."""
     test_offset: Optional[int] = None
     """First test frame (default: 2 for the loop, 0 for the walkthrough, the authors' split)."""
+    grain: float = 0.0
+    """Strength of a fine surface texture (0: none, the default scene; 0.3: photo-like detail) that makes the
+    renders posable by structure from motion, as a phone capture of the room would be (`ssnerf-process`'s tests)."""
 
     def __post_init__(self) -> None:
         defaults = SPLITS[self.trajectory]
@@ -183,8 +187,9 @@ def loop_path(num_frames: int, seed: int) -> List[np.ndarray]:
     return poses
 
 
-def render_view(room: Room, camera: PinholeCamera) -> RenderedView:
-    """Cast the pixel-centre rays and the supersampling rays together, and assemble one frame."""
+def render_view(room: Room, camera: PinholeCamera, grain: float = 0.0) -> RenderedView:
+    """Cast the pixel-centre rays and the supersampling rays together, and assemble one frame (albedo times
+    `surface_grain` when `grain` > 0)."""
     h, w, s2 = camera.height, camera.width, SUPERSAMPLE**2
     centre_x, centre_y = pixel_grid(w, h)
     sub_x, sub_y = pixel_grid(w, h, SUPERSAMPLE)
@@ -193,6 +198,8 @@ def render_view(room: Room, camera: PinholeCamera) -> RenderedView:
         np.concatenate([centre_y.reshape(-1), sub_y.reshape(-1)]),
     )
     hits = cast_rays(room.primitives, origin, directions)
+    if grain > 0:
+        hits.albedo = np.clip(hits.albedo * surface_grain(hits.position, grain)[:, None], 0.0, 1.0)
     radiance = room.shade(hits)[h * w :]
     rotation = camera.camera_to_world[:3, :3]
     centre = slice(0, h * w)
@@ -242,7 +249,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
     train, test = [], []
     for i, pose in enumerate(camera_path(config.trajectory, config.num_frames, config.seed)):
         camera = PinholeCamera(config.width, config.height, k["fl_x"], k["fl_y"], k["cx"], k["cy"], pose)
-        view = render_view(room, camera)
+        view = render_view(room, camera, config.grain)
         rgb = to_uint8(view.rgb)
         depth = np.round(np.clip(view.depth * 1000.0, 0, 65535)).astype(np.uint16)
         sources = view_sources(view, rgb, depth, rays)
@@ -259,6 +266,7 @@ def make_scene(config: MakeSceneConfig) -> Path:
         "test_every": config.test_every,
         "test_offset": config.test_offset,
         "hfov_deg": HFOV_DEG,
+        **({"grain": config.grain} if config.grain > 0 else {}),
         "depth_unit": "millimetre z-depth (distance along the camera's viewing axis)",
         **{spec.name: spec.label_maker.describe(options) for spec in labelled_properties()},
     }
