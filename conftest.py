@@ -148,3 +148,23 @@ def trained_scene(tmp_path_factory) -> Tuple[Path, Path]:
     config.logging.local_writer.enable = False
     train_in_process(config)
     return scene, root / "outputs" / "tiny" / "ssnerf-lite" / "run" / "config.yml"
+
+
+def write_photo_capture(root: Path, width: int = 256, height: int = 192, num_frames: int = 36) -> Path:
+    """The room's loop rendered with surface grain, as `root/photos/*.jpg` (no poses); the scene (with its true
+    poses) stays in `root/scene`. 36 frames, 10 degrees apart: 24 (15 degrees) overlap too little to pose."""
+    from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
+
+    make_scene(MakeSceneConfig(output_dir=root / "scene", width=width, height=height, num_frames=num_frames,
+                               grain=0.3, path_frames=0))
+    photos = root / "photos"
+    photos.mkdir()
+    for image in sorted((root / "scene" / "images").iterdir()):
+        Image.open(image).convert("RGB").save(photos / f"{image.stem}.jpg", quality=92)
+    return photos
+
+
+@pytest.fixture(scope="session")
+def photo_capture(tmp_path_factory) -> Path:
+    """`write_photo_capture`'s 36 photos (256x192), made once for ssnerf-process's tests and the README path's."""
+    return write_photo_capture(tmp_path_factory.mktemp("photo_capture"))

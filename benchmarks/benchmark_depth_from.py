@@ -1,11 +1,12 @@
 """How close normals made by `ssnerf-label --depth-from` come to normals made from the true depth.
 
-    python -m benchmarks.benchmark_depth_from [--output reports/depth_from] [--steps 1000] \
+    python -m benchmarks.benchmark_depth_from [--output reports/depth_from] [--steps 2000] \
         [--depth-smoothness 0.1] [--depth-from-scale 0.25] [--depth-from-smoothing 0.1] [--properties edges keypoints]
 
 1. Generates the benchmark's walkthrough scene (`BENCHMARK_SCENE`, seed 0) and a depth-less copy of it, `capture/`
    (images and poses only, as `ns-process-data` leaves a phone capture).
-2. Trains an RGB-only `ssnerf-lite` on `capture/` for `--steps` (`method_configs.short_run`, `properties=()`), with
+2. Trains an RGB-only `ssnerf-lite` on `capture/` for `--steps` as `ssnerf-label` trains its depth model (every
+   frame unless `--no-every-frame`; `cli.label.depth_model_trainer`), with
    `--depth-smoothness` the `depth_smoothness` regulariser's `mult`; a run whose final checkpoint exists is reused.
    With `--properties` (those `ssnerf-label` makes from the images alone, edges and keypoints), the model trains on them
    too, labelled first in a copy, `capture_labelled/`.
@@ -34,13 +35,13 @@ from PIL import Image
 
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from ssnerf_method.cli.label import depth_model_trainer
 from ssnerf_method.data.io import write_json_atomic
 from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.experiments.benchmark import BENCHMARK_SCENE
 from ssnerf_method.label_makers.encoding import decode_normals
 from ssnerf_method.label_tool.label_dataset import LabelDatasetBase, LabelDatasetConfig, label_dataset
-from ssnerf_method.method_configs import short_run
 from ssnerf_method.properties import OPTIONAL_PROPERTIES, REGISTRY, labelled_properties
 from ssnerf_method.scene.make_scene import MakeSceneConfig, make_scene
 
@@ -53,8 +54,8 @@ class BenchmarkDepthFromConfig:
 
     output: Path = Path("reports/depth_from")
     """Folder for the scene, the model, the labelled copies and the results (reused: the model is trained once)."""
-    steps: int = 1000
-    """Training steps of the RGB-only ssnerf-lite."""
+    steps: int = LabelDatasetBase.depth_model_steps
+    """Training steps of the RGB-only ssnerf-lite (default: ssnerf-label's --depth-model-steps)."""
     depth_smoothness: float = 0.1
     """The model's `--pipeline.model.regularisers.depth-smoothness.mult` (0: off, a plain RGB-only run)."""
     depth_from_scale: float = LabelDatasetBase.depth_from_scale
@@ -65,6 +66,9 @@ class BenchmarkDepthFromConfig:
     properties: Tuple[str, ...] = ()
     """Properties the model trains on beside RGB, labelled from the images alone by `ssnerf-label` (edges,
     keypoints: what a capture without depth has); default none, an RGB-only model."""
+    every_frame: bool = True
+    """Train on every frame, the held-out ones too, as `ssnerf-label`'s depth model does (a labeller sees each image,
+    as a depth sensor would); `--no-every-frame`: on the training split only."""
     seed: int = 0
     """Scene seed."""
     width: Optional[int] = None
@@ -85,6 +89,7 @@ class BenchmarkDepthFromConfig:
         """What the model learns: "rgb-only", or e.g. "rgb+edges+keypoints", then "-smooth0.1" with
         `--depth-smoothness` (its run folder and the printed line)."""
         name = "+".join(("rgb", *self.properties)) if self.properties else "rgb-only"
+        name = f"{name}-every-frame" if self.every_frame else name
         return f"{name}-smooth{self.depth_smoothness:g}" if self.depth_smoothness > 0 else name
 
 
@@ -105,12 +110,12 @@ def images_only(scene: Path, target: Path, keep_depth: bool) -> Path:
 
 
 def train(config: BenchmarkDepthFromConfig, capture: Path) -> Dict:
-    """Train (or reuse) the model (RGB, plus `--properties`); returns its config.yml path and training seconds (None
-    when reused)."""
-    trainer = short_run(METHOD, capture, config.output / "runs", config.steps)
+    """Train (or reuse) the model (RGB, plus `--properties`) as `ssnerf-label` trains its depth model; returns its
+    config.yml path and training seconds (None when reused)."""
+    trainer = depth_model_trainer(load_transforms(capture), config.output / "runs", config.steps, config.every_frame)
     trainer.pipeline.model.properties = config.properties  # type: ignore[attr-defined]
     trainer.pipeline.model.regularisers["depth_smoothness"].mult = config.depth_smoothness  # type: ignore[attr-defined]
-    trainer.experiment_name, trainer.timestamp = config.model_name, f"steps{config.steps}"
+    trainer.experiment_name = config.model_name
     config_path = trainer.get_base_dir() / "config.yml"
     checkpoint = trainer.get_checkpoint_dir() / f"step-{config.steps - 1:09d}.ckpt"
     seconds = None
@@ -214,6 +219,7 @@ def main(config: BenchmarkDepthFromConfig) -> Dict:
         "scene": {"seed": config.seed, **BENCHMARK_SCENE, **size, "frames": len(meta["frames"]),
                   "held_out": len(held_out)},
         "model": {"method": METHOD, "properties": list(config.properties), "steps": config.steps,
+                  "every_frame": config.every_frame,
                   "depth_smoothness_mult": config.depth_smoothness,
                   "config": str(run["config"]), "train_seconds": run["train_seconds"]},
         "depth_from_scale": config.depth_from_scale,

@@ -2,9 +2,9 @@
 
 `.ci/run` calls it right after the demo's install step (`make env demo-system`), before the test extras and their
 apt packages arrive, so that a command that needs something only the tests install fails CI. It imports the modules
-the documented commands load late (open3d: `ns-process-data`, `ns-export`, `ssnerf-export-points`) and runs each
-documented command's `--help` (its program and subcommand, the rest of the line left out). One line per fault; exit
-status 1 if there is any.
+the documented commands load late (open3d: `ns-export`, `ssnerf-export-points`; pycolmap: `ssnerf-process`), checks
+the binaries they run (ffmpeg: `ns-render`'s videos) and runs each documented command's `--help` (its program and
+subcommand, the rest of the line left out). One line per fault; exit status 1 if there is any.
 
     .venv/bin/python scripts/check_environment.py [--readme README.md]
 """
@@ -15,6 +15,7 @@ import argparse
 import os
 import re
 import shlex
+import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -22,8 +23,10 @@ from typing import List, Tuple
 
 SECTIONS = ("Quick start on your own data", "Label your own scene")
 """The README's sections whose bash blocks a user with their own capture runs."""
-LATE_IMPORTS = ("open3d",)
+LATE_IMPORTS = ("open3d", "pycolmap")
 """Modules the documented commands import only when they run (a missing system library shows only then)."""
+PROGRAMS = ("ffmpeg",)
+"""Binaries the documented commands run (`ns-render` writes its videos with ffmpeg)."""
 BLOCK = re.compile(r"```bash\n(.*?)```", re.S)
 
 
@@ -55,6 +58,9 @@ def check(readme: Path) -> List[str]:
         done = subprocess.run([sys.executable, "-c", f"import {module}"], capture_output=True, text=True)
         if done.returncode:
             faults.append(f"import {module}: {last_line(done.stderr)}")
+    for binary in PROGRAMS:
+        if shutil.which(binary) is None:
+            faults.append(f"{binary}: not on the PATH (make demo installs it with apt-get)")
     bin_dir = Path(sys.executable).parent
     for command in documented_commands(readme):
         program = bin_dir / command[0]
@@ -82,8 +88,8 @@ def main(argv: Tuple[str, ...] = ()) -> int:
     for fault in faults:
         print(f"check_environment: {fault}", file=sys.stderr)
     if not faults:
-        print(f"check_environment: {len(documented_commands(readme))} documented commands and "
-              f"{', '.join(LATE_IMPORTS)} work in {Path(sys.executable).parent.parent}")
+        print(f"check_environment: {len(documented_commands(readme))} documented commands, "
+              f"{', '.join(LATE_IMPORTS + PROGRAMS)} work in {Path(sys.executable).parent.parent}")
     return 1 if faults else 0
 
 

@@ -208,3 +208,35 @@ def test_bad_config_one_line_nothing_written(case: str, trained_scene, tmp_path:
         change(data)
     (tmp_path / "configs").mkdir()
     ssnerf_label_refuses(data, arguments(config_path, tmp_path / "configs"), words, capsys, monkeypatch)
+
+
+def test_without_depth_from_ssnerf_label_trains_a_depth_model_on_every_frame(trained_scene, tmp_path: Path) -> None:
+    """The default for a capture without depth: ssnerf-label trains an RGB-only model on every frame (held-out ones
+    included) and labels normals and shading with its depth; the next run reuses the model."""
+    scene, _ = trained_scene
+    data = without_depth(scene, tmp_path / "data")
+    config = LabelDatasetConfig(data=data, depth_model_steps=3, **ONLY_NORMALS)
+    report = label_main(config)
+    assert report.outcomes["normals"] == {LABELLED: 10} and report.outcomes["shading"] == {LABELLED: 10}
+    model_config = data / "ssnerf_labels" / "depth_model" / "rgb" / "ssnerf-lite" / "steps3" / "config.yml"
+    meta = json.loads((data / "transforms.json").read_text())
+    assert meta["ssnerf_label"]["depth_from"]["config"] == str(model_config.resolve())
+    trained = yaml.load(model_config.read_text(), Loader=yaml.Loader)
+    assert trained.pipeline.model.properties == ()
+    assert Path(trained.pipeline.datamanager.data).name == "transforms_depth_model.json"
+    trained.pipeline.datamanager.dataparser.data = trained.pipeline.datamanager.data
+    outputs = trained.pipeline.datamanager.dataparser.setup().get_dataparser_outputs("train")
+    held_out = len(meta["test_filenames"])
+    assert held_out > 0 and len(outputs.image_filenames) == 10  # every frame, the held-out ones too
+    checkpoint = next((model_config.parent / "nerfstudio_models").glob("step-*.ckpt"))
+    written = checkpoint.stat().st_mtime_ns
+    label_main(LabelDatasetConfig(data=data, depth_model_steps=3, relabel=True, **ONLY_NORMALS))
+    assert checkpoint.stat().st_mtime_ns == written  # reused, not trained again
+
+
+def test_depth_model_steps_0_skips_normals_without_depth(trained_scene, tmp_path: Path) -> None:
+    scene, _ = trained_scene
+    data = without_depth(scene, tmp_path / "data")
+    report = label_main(LabelDatasetConfig(data=data, depth_model_steps=0, **ONLY_NORMALS))
+    assert report.outcomes["normals"].get(LABELLED, 0) == 0
+    assert not (data / "ssnerf_labels" / "depth_model").exists()

@@ -33,7 +33,7 @@ from conftest import look_at
 from test_training import lite_config, train
 
 DERIVED = ("normals", "shading", "edges", "keypoints")
-NO_DEPTH = "no depth_file_path (--depth-from a model trained on the data renders it)"
+NO_DEPTH = "no depth_file_path (ssnerf-label's depth model renders it unless --depth-model-steps 0)"
 
 
 @pytest.fixture(scope="module")
@@ -234,7 +234,7 @@ def write_capture(root: Path, num_frames: int = 6) -> Path:
 
 def test_capture_without_depth_labels_edges_and_keypoints_then_trains(tmp_path: Path) -> None:
     data = write_capture(tmp_path / "capture")
-    report = main(LabelDatasetConfig(data=data))
+    report = main(LabelDatasetConfig(data=data, depth_model_steps=0))  # (the depth model: tests/test_depth_from.py)
     assert report.outcomes["edges"] == {LABELLED: 6} and report.outcomes["keypoints"] == {LABELLED: 6}
     assert report.outcomes["normals"] == {f"skipped: {NO_DEPTH}": 6}
     assert report.outcomes["shading"] == {"skipped: no normals (given or derived from depth)": 6}

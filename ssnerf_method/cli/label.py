@@ -3,13 +3,16 @@
 from __future__ import annotations
 
 import time
+from pathlib import Path
 
 import tyro
 from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
 from rich.table import Table
 
+from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE, ItersPerSecColumn
 
+from ssnerf_method.data.io import write_json_atomic
 from ssnerf_method.data.transforms import Transforms, load_transforms
 from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.errors import UserError, exit_with
@@ -21,12 +24,34 @@ from ssnerf_method.label_tool.label_dataset import (
     check_frames,
     frames_needing_depth,
     label_dataset,
+    prepare_inputs,
 )
 from ssnerf_method.label_tool.paths import LABEL_FOLDER, output_path
 from ssnerf_method.method_configs import short_run
 
 DEPTH_MODEL_SMOOTHNESS = 0.1
 """The depth model's `depth_smoothness` regulariser weight (`benchmark_depth_from`: flat walls come out flat)."""
+DEPTH_MODEL_TRANSFORMS = "transforms_depth_model.json"
+"""The dataset's transforms without its split lists, beside it, which the depth model trains on: every frame."""
+
+
+def depth_model_trainer(transforms: Transforms, output_dir: Path, steps: int, every_frame: bool = True
+                        ) -> TrainerConfig:
+    """The RGB-only ssnerf-lite whose rendered depth labels frames without depth. With `every_frame` it trains on
+    every frame, the held-out ones too (written as `DEPTH_MODEL_TRANSFORMS`, nerfstudio's `eval_mode` "all"): it is a
+    labeller, which sees each image as a depth sensor would, while the SS-NeRF trained on the labels holds them out."""
+    data = transforms.path
+    if every_frame:
+        data = transforms.folder / DEPTH_MODEL_TRANSFORMS
+        write_json_atomic(data, {key: value for key, value in transforms.meta.items()
+                                 if not key.endswith("_filenames")})
+    trainer = short_run("ssnerf-lite", data, output_dir, steps)
+    if every_frame:
+        trainer.pipeline.datamanager.dataparser.eval_mode = "all"  # type: ignore[attr-defined]
+    trainer.pipeline.model.properties = ()  # type: ignore[attr-defined]
+    trainer.pipeline.model.regularisers["depth_smoothness"].mult = DEPTH_MODEL_SMOOTHNESS  # type: ignore[attr-defined]
+    trainer.experiment_name, trainer.timestamp = "rgb", f"steps{steps}"
+    return trainer
 
 
 def train_depth_model(config: LabelDatasetConfig, transforms: Transforms) -> None:
@@ -37,15 +62,13 @@ def train_depth_model(config: LabelDatasetConfig, transforms: Transforms) -> Non
     frames = frames_needing_depth(config, transforms, model=True)
     if not frames:
         return
-    check_frames(transforms, config)  # a bad dataset stops here, not after the training
+    check_frames(transforms, config)  # bad input stops here, not after the training
+    prepare_inputs(config, transforms)
     folder = (output_path(config.output, transforms).parent / LABEL_FOLDER / "depth_model").resolve()
-    trainer = short_run("ssnerf-lite", transforms.path, folder, config.depth_model_steps)
-    trainer.pipeline.model.properties = ()  # type: ignore[attr-defined]
-    trainer.pipeline.model.regularisers["depth_smoothness"].mult = DEPTH_MODEL_SMOOTHNESS  # type: ignore[attr-defined]
-    trainer.experiment_name, trainer.timestamp = "rgb", f"steps{config.depth_model_steps}"
+    trainer = depth_model_trainer(transforms, folder, config.depth_model_steps)
     checkpoint = trainer.get_checkpoint_dir() / f"step-{config.depth_model_steps - 1:09d}.ckpt"
     if not checkpoint.is_file():
-        CONSOLE.rule(f"{len(frames)} frames have no depth: training an RGB-only ssnerf-lite for "
+        CONSOLE.rule(f"{len(frames)} frames have no depth: training an RGB-only ssnerf-lite on every frame for "
                      f"{config.depth_model_steps} steps to render it (--depth-model-steps)")
         train_in_process(trainer)
     else:

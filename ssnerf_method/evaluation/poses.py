@@ -4,7 +4,9 @@ angle and centre distance."""
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Tuple
 
 import numpy as np
@@ -15,9 +17,9 @@ from jaxtyping import Float
 class PoseErrors:
     """Per-camera errors after the alignment."""
 
-    rotation_deg: Float[np.ndarray, "n"]
+    rotation_deg: Float[np.ndarray, " n"]
     """Angle between each true camera rotation and the aligned recovered one."""
-    translation: Float[np.ndarray, "n"]
+    translation: Float[np.ndarray, " n"]
     """Distance between each true camera centre and the aligned recovered one, as a share of `scene_size`."""
     scene_size: float
     """Diagonal of the true camera centres' bounding box (the scale the distances are divided by)."""
@@ -48,3 +50,14 @@ def pose_errors(true_c2w: Float[np.ndarray, "n 4 4"], recovered_c2w: Float[np.nd
     size = float(np.linalg.norm(extent))
     return PoseErrors(rotation_deg=np.degrees(np.arccos(cosine)),
                       translation=np.linalg.norm(centres - true_c2w[:, :3, 3], axis=1) / size, scene_size=size)
+
+
+def poses_by_photo_order(true_transforms: Path, recovered_transforms: Path
+                         ) -> Tuple[Float[np.ndarray, "n 4 4"], Float[np.ndarray, "n 4 4"]]:
+    """Stacked true and recovered camera-to-world poses of the frames `ssnerf-process` posed: its `frame_00001` is the
+    first photo in name order, so the k-th true frame (by file name) is its `frame_{k+1:05d}`."""
+    truth = sorted(json.loads(true_transforms.read_text())["frames"], key=lambda frame: frame["file_path"])
+    recovered = json.loads(recovered_transforms.read_text())["frames"]
+    index = [int(Path(frame["file_path"]).stem.split("_")[1]) - 1 for frame in recovered]
+    return (np.stack([np.asarray(truth[i]["transform_matrix"], dtype=np.float64) for i in index]),
+            np.stack([np.asarray(frame["transform_matrix"], dtype=np.float64) for frame in recovered]))

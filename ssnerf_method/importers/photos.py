@@ -223,7 +223,8 @@ def too_few_registered(source: Path, posed: int, total: int, matching: Matching,
     advice = ("Take the photos closer together (each part of the scene in 3 or more photos, neighbours sharing about "
               "two thirds of the view), avoid blur and blank walls")
     if video:
-        advice = "Move the camera more slowly, keep the scene textured and in focus, or extract more frames (--num-frames)"
+        advice = ("Move the camera more slowly, keep the scene textured and in focus, or take more frames "
+                  "(--num-frames)")
     elif matching == "exhaustive":
         advice += "; photos taken along a path can also try --matching sequential"
     return DatasetInputError(f"{source}: only {posed} of {total} images could be posed. {advice}.")

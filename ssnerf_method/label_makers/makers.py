@@ -128,7 +128,7 @@ class NormalsFromDepth(LabelMaker):
                 raise Skip("no exact normals given")
             return to_uint8(encode_normals(frame.normals))
         if frame.depth is None:
-            raise Skip("no depth_file_path (--depth-from a model trained on the data renders it)")
+            raise Skip("no depth_file_path (ssnerf-label's depth model renders it unless --depth-model-steps 0)")
         if not frame.perspective:
             raise Skip("camera model is not a perspective (pinhole) camera")
         depth = frame.depth()

@@ -64,7 +64,7 @@ class LabelDatasetBase:
     depth_from: Optional[Path] = None
     """config.yml of an SS-NeRF trained on this dataset (e.g. a short RGB-only ssnerf-lite): frames without
     depth_file_path get its rendered z-depth, from which normals and shading are made as from sensor depth."""
-    depth_model_steps: int = 1000
+    depth_model_steps: int = 2000
     """Without --depth-from, frames without depth_file_path (a photo capture) get normals and shading from the depth
     of an RGB-only ssnerf-lite that ssnerf-label trains on the images for this many steps first (kept in
     ssnerf_labels/depth_model/ and reused); 0: those frames get no normals or shading."""
