@@ -42,7 +42,7 @@ def depth_model_trainer(transforms: Transforms, output_dir: Path, steps: int, ev
     labeller, which sees each image as a depth sensor would, while the SS-NeRF trained on the labels holds them out."""
     data = transforms.path
     if every_frame:
-        data = transforms.folder / DEPTH_MODEL_TRANSFORMS
+        data = transforms.folder.resolve() / DEPTH_MODEL_TRANSFORMS  # absolute: the model loads from anywhere
         write_json_atomic(data, {key: value for key, value in transforms.meta.items()
                                  if not key.endswith("_filenames")})
     trainer = short_run("ssnerf-lite", data, output_dir, steps)

@@ -36,9 +36,9 @@ from ssnerf_method.importers.photos import (
 class ProcessImagesConfig(ProcessOptions):
     """Pose a folder of photos of one scene (one camera, one size) and write a nerfstudio dataset."""
 
-    data: tyro.conf.Positional[Path] = Path("my_photos")
+    data: Annotated[tyro.conf.Positional[Path], tyro.conf.arg(metavar="PHOTOS")] = tyro.MISSING
     """Folder of photos (JPEG or PNG)."""
-    output_dir: tyro.conf.Positional[Path] = Path("my_scene")
+    output_dir: Annotated[tyro.conf.Positional[Path], tyro.conf.arg(metavar="OUTPUT_DIR")] = tyro.MISSING
     """Dataset folder to write (missing or empty, unless --overwrite)."""
 
     def run(self, observer: ProcessObserver) -> ProcessReport:
@@ -50,9 +50,9 @@ class ProcessImagesConfig(ProcessOptions):
 class ProcessVideoConfig(ProcessOptions):
     """Pose frames of a video of one scene and write a nerfstudio dataset."""
 
-    data: tyro.conf.Positional[Path] = Path("clip.mp4")
+    data: Annotated[tyro.conf.Positional[Path], tyro.conf.arg(metavar="VIDEO")] = tyro.MISSING
     """Video file (anything OpenCV's FFmpeg reads: MP4, MOV, ...)."""
-    output_dir: tyro.conf.Positional[Path] = Path("my_scene")
+    output_dir: Annotated[tyro.conf.Positional[Path], tyro.conf.arg(metavar="OUTPUT_DIR")] = tyro.MISSING
     """Dataset folder to write (missing or empty, unless --overwrite)."""
     num_frames: int = 100
     """Frames to take, spread evenly over the video."""
