@@ -30,11 +30,15 @@ def test_photos_are_posed_as_nerfstudio_lays_a_dataset_out(capture: Path, tmp_pa
     dataset = tmp_path / "my_scene"
     report = process_capture(capture, dataset, ProcessOptions(num_downscales=2),
                              lambda images, observer: gather_photos(capture, images, observer))
-    assert len(report.registered) == 36 and not report.unregistered
+    # COLMAP's multithreaded mapping is not reproducible: all 36 are posed here as a rule, but a CI run once split
+    # them into models of 23 and 13. The contract: the largest model's frames, the rest listed, no fewer than half.
+    assert len(report.registered) + len(report.unregistered) == 36 and len(report.registered) >= 18
     meta = json.loads((dataset / "transforms.json").read_text())
     assert meta["camera_model"] == "OPENCV" and (meta["w"], meta["h"]) == (256, 192)
     assert abs(meta["fl_x"] - 256 / 2 / np.tan(np.radians(37.5))) < 0.05 * meta["fl_x"]  # the true 75 deg FOV
-    assert [frame["file_path"] for frame in meta["frames"]] == [f"images/frame_{i:05d}.jpg" for i in range(1, 37)]
+    paths = [frame["file_path"] for frame in meta["frames"]]
+    assert paths == sorted(paths) and len(paths) == len(report.registered)
+    assert set(paths) <= {f"images/frame_{i:05d}.jpg" for i in range(1, 37)}
     for folder, size in (("images", (256, 192)), ("images_2", (128, 96)), ("images_4", (64, 48))):
         assert Image.open(dataset / folder / "frame_00001.jpg").size == size
     assert not (dataset / "images_8").exists()
