@@ -20,7 +20,7 @@ import numpy as np
 from PIL import Image
 
 from ssnerf_method.data.io import DatasetInputError, StagedOutputFolder, write_json_atomic
-from ssnerf_method.importers.writer import IMAGE_SUFFIXES, check_destination
+from ssnerf_method.importers.writer import IMAGE_SUFFIXES, check_destination, list_images
 
 Matching = Literal["exhaustive", "sequential"]
 MIN_IMAGES = 3
@@ -83,7 +83,7 @@ def list_photos(folder: Path) -> List[Path]:
     if not folder.is_dir():
         raise DatasetInputError(f"{folder}: not a folder. Pass the folder that holds your photos "
                                 "(ssnerf-process video CLIP for a video).")
-    photos = sorted(path for path in folder.iterdir() if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES)
+    photos = list_images(folder)
     if not photos:
         raise DatasetInputError(f"{folder}: holds no images ({', '.join(IMAGE_SUFFIXES)}). Put the photos of one "
                                 "scene in it.")
@@ -291,9 +291,10 @@ def process_capture(source: Path, output_dir: Path, options: ProcessOptions,
         if factors:
             timed("downscale", lambda: downscale(images, factors, observer))
         registered = sorted(Path(frame["file_path"]).name for frame in meta["frames"])
+        posed_names = set(registered)
         report = ProcessReport(
             output_dir=output_dir, num_images=len(names), registered=[names[name] for name in registered],
-            unregistered=[original for name, original in sorted(names.items()) if name not in set(registered)],
+            unregistered=[original for name, original in sorted(names.items()) if name not in posed_names],
             num_points=model.num_points3D(),  # type: ignore[attr-defined]
             reprojection_error_px=float(model.compute_mean_reprojection_error()),  # type: ignore[attr-defined]
             seconds=seconds)
