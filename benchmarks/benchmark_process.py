@@ -45,6 +45,8 @@ class BenchmarkProcessConfig:
     matching: Matching = "exhaustive"
     max_image_size: int = ProcessOptions.max_image_size
     """Longest side SIFT sees (ssnerf-process's default; COLMAP's own is 3200)."""
+    max_num_features: int = ProcessOptions.max_num_features
+    """SIFT features kept per image."""
 
 
 def generated_capture(config: BenchmarkProcessConfig) -> Path:
@@ -67,13 +69,15 @@ def main(config: BenchmarkProcessConfig) -> Dict:
     photos = config.photos or generated_capture(config)
     dataset = config.output / "dataset"
     start = time.perf_counter()
-    options = ProcessOptions(matching=config.matching, max_image_size=config.max_image_size, overwrite=True)
+    options = ProcessOptions(matching=config.matching, max_image_size=config.max_image_size,
+                             max_num_features=config.max_num_features, overwrite=True)
     report = process_capture(photos, dataset, options,
                              lambda images, observer: gather_photos(photos, images, observer))
     total = round(time.perf_counter() - start, 1)
     result: Dict = {
         "command": " ".join(["python -m benchmarks.benchmark_process", *sys.argv[1:]]),
         "photos": str(photos), "matching": config.matching, "max_image_size": config.max_image_size,
+        "max_num_features": config.max_num_features,
         "num_images": report.num_images, "registered": len(report.registered),
         "unregistered": report.unregistered, "seconds": {**report.seconds, "total": total},
         "sparse_points": report.num_points, "reprojection_error_px": round(report.reprojection_error_px, 3),

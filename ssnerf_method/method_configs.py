@@ -24,6 +24,7 @@ from ssnerf_method.engine.trainer import SSNeRFTrainerConfig
 from ssnerf_method.model.loss_balancing import LossBalancerConfig
 from ssnerf_method.model.ssnerf_model import SSNeRFModelConfig
 from ssnerf_method.pipelines.ssnerf_pipeline import SSNeRFPipelineConfig
+from ssnerf_method.viewer.host import LOCAL_HOST
 
 SHORT_RUN_STEPS = {"ssnerf-lite": 1000, "ssnerf": 20000}
 """Training steps of a short run per method, the benchmark's and the studies' default (the methods' own
@@ -57,7 +58,7 @@ ssnerf_config = SSNeRFTrainerConfig(
             "scheduler": ExponentialDecaySchedulerConfig(lr_final=5e-5, max_steps=250000),
         },
     },
-    viewer=ViewerConfig(num_rays_per_chunk=4096),
+    viewer=ViewerConfig(num_rays_per_chunk=4096, websocket_host=LOCAL_HOST),
     vis="viewer+tensorboard",
 )
 
@@ -113,7 +114,7 @@ ssnerf_lite_config = SSNeRFTrainerConfig(
             "scheduler": ExponentialDecaySchedulerConfig(lr_final=1e-4, max_steps=30000),
         },
     },
-    viewer=ViewerConfig(num_rays_per_chunk=8192),
+    viewer=ViewerConfig(num_rays_per_chunk=8192, websocket_host=LOCAL_HOST),
     vis="viewer+tensorboard",
 )
 

@@ -183,7 +183,7 @@ def test_labelme_folder_polygon_rectangle_circle(data: Path, tmp_path: Path) -> 
     np.testing.assert_array_equal(result["frame_005.png"], expected_5)
     assert circle.sum() == 32  # pixel centres within 3 px of (8, 6): 8 per quadrant
     assert report.notes == [f"{folder}: skipped shapes that label no pixels (1 line, 1 point)."]
-    record = json.loads((data / "transforms.json").read_text())["ssnerf_label"]["annotations"]
+    record = json.loads((data / "transforms.json").read_text())["ssnerf_label"]["annotations"][-1]
     assert record["format"] == "labelme" and record["skipped_shapes"] == {"line": 1, "point": 1}
 
 
@@ -211,19 +211,26 @@ def test_provenance_and_a_rerun_takes_the_edited_annotations(data: Path, tmp_pat
                {"image_id": 2, "category_id": 2, "bbox": [0, 0, 3, 3]}], CATEGORIES)  # a box only: no pixels
     run(data, coco, edges=True)
     record = json.loads((data / "transforms.json").read_text())["ssnerf_label"]
-    assert record["annotations"] == {
+    first_import = {
         "source": str(coco.resolve()), "format": "coco",
         "frames": {"images/frame_001.png": str(coco.resolve())},
         "skipped_shapes": {"annotation without segmentation": 1},
     }
+    assert record["annotations"] == [first_import]
     assert record["semantics"].startswith(f"copied from {coco} (coco")
     assert set(record) == {"tool", "semantics", "edges", "annotations"}
 
     coco_file(coco, [image(1, "frame_001.png")],
               [{"image_id": 1, "category_id": 2, "segmentation": [box(0, 2, 0, 2)]}], CATEGORIES)
-    report = run(data, coco)  # no --relabel: the frame's semantics are remade from the edited file
+    report = run(data, coco)  # no --relabel: the edited file's labels go over the earlier ones
     assert report.outcomes["semantics"][LABELLED] == 1
+    assert labelled(data)["frame_001.png"][0, 0] == 2 and labelled(data)["frame_001.png"][3, 3] == 1
+    assert labelled(data)["frame_001.png"][5, 5] == 255
+    imports = json.loads((data / "transforms.json").read_text())["ssnerf_label"]["annotations"]
+    assert len(imports) == 2 and imports[0] == first_import and "skipped_shapes" not in imports[1]
+    run(data, coco, relabel=True)  # --relabel: this file alone
     assert labelled(data)["frame_001.png"][0, 0] == 2 and labelled(data)["frame_001.png"][3, 3] == 255
+    assert len(json.loads((data / "transforms.json").read_text())["ssnerf_label"]["annotations"]) == 1
 
 
 def test_mask_folder_through_annotations(data: Path, tmp_path: Path) -> None:
@@ -233,7 +240,7 @@ def test_mask_folder_through_annotations(data: Path, tmp_path: Path) -> None:
     Image.fromarray(ids).save(tmp_path / "masks" / "frame_002.png")
     run(data, tmp_path / "masks")
     np.testing.assert_array_equal(labelled(data)["frame_002.png"], ids)
-    record = json.loads((data / "transforms.json").read_text())["ssnerf_label"]["annotations"]
+    record = json.loads((data / "transforms.json").read_text())["ssnerf_label"]["annotations"][-1]
     assert record["format"] == "masks" and list(record["frames"]) == ["images/frame_002.png"]
 
 

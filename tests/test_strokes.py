@@ -287,3 +287,33 @@ def test_a_stroke_that_cannot_be_saved_is_said_in_the_panel(tmp_path: Path, monk
     assert "cannot be written (Permission denied)" in panel.h_status.value
     assert len(store.strokes) == 1 and store.version == version, "the store holds only what the file holds"
     assert len(StrokeStore.load(store.path).strokes) == 1
+
+
+@pytest.mark.parametrize("message, reason", [
+    ({"disc": ((1.5, 0.5), 3.0)}, "outside the image"),
+    ({"disc": ((0.5, float("nan")), 3.0)}, "outside the image"),
+    ({"disc": ((0.5, 0.5), 500.0)}, "brush radius 500"),
+    ({"disc": ((0.5, 0.5), 0.0)}, "brush radius 0"),
+    ({"box": ((0.1, 0.1), (0.5, 2.0))}, "outside the image"),
+    ({"box": ((0.1,), (0.5, 0.5))}, "outside the image"),
+    ({"class": "9: sofa", "disc": ((0.5, 0.5), 3.0)}, "class '9: sofa' is not in the list"),
+    ({"new_class": "x" * 65}, "at most 64 printable characters"),
+    ({"new_class": "bad\nname"}, "at most 64 printable characters"),
+])
+def test_a_clients_stroke_is_checked_before_anything_is_written(tmp_path: Path, message, reason) -> None:
+    """Messages a browser (or anything reaching the port) sends: a class not in the list, a position outside the
+    image, a brush outside the slider's range, an unbounded class name: refused, said in the panel, nothing written."""
+    store = StrokeStore.load(tmp_path / STROKES_FILE)
+    panel = LabelPanel(store, FRAME, ["void", "wall"], 4, torch.rand(4, 3), 16, True)
+    assert panel.paint_disc(camera(np.eye(4)), (0.5, 0.5), 3.0) is not None  # a good stroke is saved
+    before = store.path.read_bytes()
+    if "class" in message:
+        panel.b_class.value = message["class"]
+    if "disc" in message:
+        assert panel.paint_disc(camera(np.eye(4)), *message["disc"]) is None
+    if "box" in message:
+        assert panel.paint_box(camera(np.eye(4)), *message["box"]) is None
+    if "new_class" in message:
+        assert not panel.add_class(message["new_class"])
+    assert reason in panel.h_status.value
+    assert store.path.read_bytes() == before and len(store.strokes) == 1 and panel.class_names == ["void", "wall"]

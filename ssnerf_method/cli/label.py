@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import time
 from pathlib import Path
+from typing import Dict, List
 
 import tyro
 from rich.progress import BarColumn, Progress, TaskProgressColumn, TextColumn, TimeRemainingColumn
@@ -12,7 +13,7 @@ from rich.table import Table
 from nerfstudio.engine.trainer import TrainerConfig
 from nerfstudio.utils.rich_utils import CONSOLE, ItersPerSecColumn
 
-from ssnerf_method.data.io import write_json_atomic
+from ssnerf_method.data.io import DatasetInputError, write_json_atomic
 from ssnerf_method.data.transforms import Transforms, load_transforms
 from ssnerf_method.engine.trainer import train_in_process
 from ssnerf_method.errors import UserError, exit_with
@@ -76,6 +77,80 @@ def train_depth_model(config: LabelDatasetConfig, transforms: Transforms) -> Non
     config.depth_from = trainer.get_base_dir() / "config.yml"
 
 
+def suggest(config: LabelDatasetConfig, transforms: Transforms) -> List[Path]:
+    """--suggest-frames / --suggest-clicks: write the suggestion files (labelling nothing) and print them."""
+    import numpy as np
+    from PIL import Image
+
+    from ssnerf_method.label_tool import suggest as suggestions
+    from ssnerf_method.properties import class_property, class_uncertainty
+
+    if config.suggest_frames < 0 or config.suggest_clicks < 0:
+        raise DatasetInputError(f"--suggest-frames {config.suggest_frames} / --suggest-clicks {config.suggest_clicks}:"
+                                " must be 0 or more. Pass e.g. --suggest-frames 4.")
+    if config.suggest_clicks and config.load_config is None:
+        raise DatasetInputError(f"{transforms.path}: --suggest-clicks needs --load-config, the config.yml of a model "
+                                "trained on this data with semantics (ns-train ssnerf-lite --data DATA), whose "
+                                "uncertainty decides the questions.")
+    model = None
+    if config.load_config is not None:
+        from ssnerf_method.label_tool.rendered_depth import load_depth_model
+
+        model = load_depth_model(config.load_config, transforms)
+        if config.suggest_clicks and not model.model.class_names:  # type: ignore[attr-defined]
+            raise DatasetInputError(f"{config.load_config}: the model has no semantic classes. Declare them "
+                                    "(ssnerf-label DATA --semantic-classes wall floor ...), train, and pass that run.")
+    spec = class_property()
+    frames = suggestions.training_frames(transforms)
+    renders: Dict[str, Dict] = {}
+    with Progress(TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(),
+                  TimeRemainingColumn(elapsed_when_finished=True, compact=True)) as progress:
+        task = progress.add_task("Rendering the frames" if model is not None else "Reading depth", total=len(frames))
+        views = suggestions.frame_views(transforms, frames, model, renders, lambda: progress.advance(task))
+    written = []
+    folder = output_path(config.output, transforms).parent
+    if config.suggest_frames:
+        annotated = [frame["file_path"] for frame in frames if spec.file_key in frame]
+        source = "capture depth" if model is None else f"rendered depth of {config.load_config}"
+        suggestion = suggestions.suggest_frames(views, config.suggest_frames, annotated, source)
+        table = Table(title=f"Frames to annotate, in order (surface from the {source})")
+        for column in ("#", "frame", "scene it adds", "scene seen"):
+            table.add_column(column)
+        seen = suggestion.annotated_share
+        if annotated:
+            table.add_row("-", f"{len(annotated)} annotated already", "", f"{100 * seen:.1f}%")
+        for order, pick in enumerate(suggestion.picks, 1):
+            seen += pick.added_share
+            table.add_row(str(order), pick.file_path, f"{100 * pick.added_share:.1f}%", f"{100 * seen:.1f}%")
+        CONSOLE.print(table)
+        written.append(suggestions.write_frame_suggestion(folder, suggestion))
+    if config.suggest_clicks:
+        uncertainty, guesses, labelled, sizes = [], [], [], []
+        for frame in frames:
+            logits = renders[frame["file_path"]][spec.prediction_key]
+            uncertainty.append(class_uncertainty(logits)[..., 0].cpu().numpy())
+            guesses.append(logits.argmax(dim=-1).cpu().numpy())
+            width, height = Image.open(transforms.file(frame["file_path"])).size
+            sizes.append((width, height))
+            labelled.append(np.asarray(Image.open(transforms.file(frame[spec.file_key])))
+                            if spec.file_key in frame else None)
+        clicks = suggestions.suggest_clicks(views, uncertainty, guesses, labelled,
+                                            model.model.class_names, config.suggest_clicks,  # type: ignore[union-attr]
+                                            sizes)
+        path = suggestions.write_click_suggestion(folder, clicks, str(config.load_config))
+        CONSOLE.print(f"{len(clicks)} pixels to answer, most uncertain first (uncertainty "
+                      f"{clicks[0].uncertainty:.2f} to {clicks[-1].uncertainty:.2f}), on "
+                      f"{len({click.file_path for click in clicks})} frames" if clicks else "No pixel to ask about.",
+                      highlight=False)
+        written.append(path)
+    for path in written:
+        CONSOLE.print(f"Wrote {path}", highlight=False)
+    if config.suggest_clicks:
+        CONSOLE.print(f"Answer: fill each \"class\" with a class name (null skips it), then: ssnerf-label "
+                      f"{transforms.folder} --annotations {written[-1]}", highlight=False)
+    return written
+
+
 def report_table(report: LabelReport, num_frames: int) -> Table:
     """One row per property: frames labelled, kept, and skipped with each reason."""
     table = Table(title=f"ssnerf-label: {num_frames} frames")
@@ -92,6 +167,9 @@ def main(config: LabelDatasetConfig) -> LabelReport:
     """Label the dataset with a progress bar (and one for the depth --depth-from renders), then print the
     per-property report."""
     transforms = load_transforms(config.data)
+    if config.suggest_frames or config.suggest_clicks:
+        suggest(config, transforms)
+        return LabelReport(transforms_path=output_path(config.output, transforms))
     start = time.perf_counter()
     train_depth_model(config, transforms)
     progress = Progress(TextColumn("{task.description}"), BarColumn(), TaskProgressColumn(show_speed=True),

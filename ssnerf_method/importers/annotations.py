@@ -27,7 +27,7 @@ from ssnerf_method.data.io import DatasetInputError, image_size
 from ssnerf_method.data.transforms import Transforms
 from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
 
-Format = Literal["coco", "labelme", "masks"]
+Format = Literal["coco", "labelme", "masks", "clicks"]
 
 VERTEX_MARGIN = 1.0
 """How far (pixels) a polygon vertex may lie beyond the image before the polygon is refused: tools snap vertices to

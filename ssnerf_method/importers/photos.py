@@ -54,6 +54,8 @@ class ProcessOptions:
     max_image_size: int = 1600
     """Longest side (pixels) SIFT sees; larger photos are shrunk for feature extraction only (COLMAP's default is
     3200: about 3x slower on a CPU, for poses that a NeRF at nerfstudio's 1600-pixel training size does not need)."""
+    max_num_features: int = 8192
+    """SIFT features kept per image (COLMAP's default). Fewer make matching and mapping faster."""
     num_downscales: int = 3
     """Half-size copies to write, as ns-process-data does (`images_2/`, `images_4/`, `images_8/` for 3); nerfstudio
     trains on the first one whose longer side is at most 1600 pixels."""
@@ -185,6 +187,7 @@ def extract_and_match(database: Path, images: Path, options: ProcessOptions, obs
     names = sorted(path.name for path in images.iterdir())
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.max_image_size = options.max_image_size
+    extraction.sift.max_num_features = options.max_num_features
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = "OPENCV"
     observer.stage("Extracting features", len(names))
@@ -211,6 +214,7 @@ def reconstruct(database: Path, images: Path, sparse: Path, options: ProcessOpti
 
     mapping = pycolmap.IncrementalPipelineOptions()
     mapping.random_seed = options.seed
+    mapping.ba_global_function_tolerance = 1e-6  # as ns-process-data passes to COLMAP: global BA stops earlier
     observer.stage("Posing images (incremental mapping)", num_images)
     models = pycolmap.incremental_mapping(database, images, sparse, mapping,
                                           initial_image_pair_callback=lambda: observer.advance(2),

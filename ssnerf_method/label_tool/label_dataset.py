@@ -31,7 +31,7 @@ from ssnerf_method.label_makers.makers import FrameSources, LabelOptions, Skip, 
 from ssnerf_method.label_tool.classes import class_list, class_record
 from ssnerf_method.label_tool.paths import label_path, output_path, rebase_paths
 from ssnerf_method.label_tool.sources import checked_depth, load_annotations, read_class_ids, semantics_file
-from ssnerf_method.properties import PropertySpec, labelled_properties
+from ssnerf_method.properties import PropertySpec, class_property, labelled_properties
 
 if TYPE_CHECKING:  # loading a model imports all of nerfstudio's methods: only with --depth-from
     from ssnerf_method.label_tool.rendered_depth import DepthFromModel
@@ -53,8 +53,9 @@ class LabelDatasetBase:
     label_options: Annotated[LabelOptions, tyro.conf.arg(name="")] = field(default_factory=LabelOptions)
     """The label makers' settings."""
     annotations: Optional[Path] = None
-    """Semantic annotations of any frames (replacing theirs): COCO or labelme .json (or a folder of them), or mask
-    PNGs as --semantics-dir. Classes match by name; uncovered pixels are unlabelled; overlaps go to the smaller."""
+    """Semantic annotations of any frames, added over their earlier labels (what it labels wins; --relabel: it alone):
+    COCO or labelme .json (or a folder of them), answered suggested clicks, or mask PNGs as --semantics-dir. Classes
+    match by name; overlaps go to the smaller shape."""
     semantics_dir: Optional[Path] = None
     """Folder of per-frame semantic labels named like the images (same relative path, .png): class ids in an 8/16-bit
     single-channel PNG (255 = unlabelled), or colours listed in transforms.json's semantic_colors."""
@@ -73,6 +74,15 @@ class LabelDatasetBase:
     depth_from_smoothing: float = 0.1
     """Average normals from rendered depth over this fraction of the image's shorter side where the image is uniform
     (guided filter, keeping the image's edges); 0: off."""
+    suggest_frames: int = 0
+    """Instead of labelling: write ssnerf_labels/suggested_frames.json, this many training frames to annotate in
+    order, each seeing the most of the scene the earlier ones leave (from the capture's depth, or --load-config's)."""
+    suggest_clicks: int = 0
+    """Instead of labelling: write ssnerf_labels/suggested_clicks.json, this many training pixels where --load-config's
+    model is least sure of the class, apart in 3D; fill in their "class" and import them with --annotations."""
+    load_config: Optional[Path] = None
+    """config.yml of a model trained on this data, for the suggestions: its rendered depth (and, for clicks, its class
+    uncertainty). --suggest-frames without it uses the frames' depth maps."""
     relabel: bool = False
     """Recompute labels a frame already lists (default: keep them, e.g. given normals or an outside annotator's)."""
     workers: int = 2
@@ -256,14 +266,27 @@ def frame_sources(
     if inputs.annotations is not None:
         annotations, classes = inputs.annotations, inputs.classes or []
         if frame["file_path"] in annotations.frames:
-            sources.semantics = lambda: annotations.class_ids(frame["file_path"], classes, height, width)
+            sources.semantics = lambda: over_earlier(
+                annotations.class_ids(frame["file_path"], classes, height, width), transforms, frame, config)
         else:
             sources.semantics = lambda: _not_annotated(annotations.source)
     elif inputs.masks is not None:
         folder = inputs.masks
         colors = transforms.meta.get("semantic_colors")
-        sources.semantics = lambda: read_class_ids(semantics_file(frame, folder), width, height, colors)
+        sources.semantics = lambda: over_earlier(
+            read_class_ids(semantics_file(frame, folder), width, height, colors), transforms, frame, config)
     return sources
+
+
+def over_earlier(class_ids: np.ndarray, transforms: Transforms, frame: Dict, config: LabelDatasetBase) -> np.ndarray:
+    """An import's class ids over the frame's earlier semantics: what it labels wins, the rest keeps the earlier
+    label (each import adds to the data); with --relabel, the import alone."""
+    key = class_property().file_key
+    if config.relabel or key not in frame:
+        return class_ids
+    height, width = class_ids.shape
+    earlier = read_class_ids(transforms.file(frame[key]), width, height, None)
+    return np.where(class_ids != SEMANTIC_IGNORE, class_ids, earlier).astype(class_ids.dtype)
 
 
 def _not_annotated(source: Path) -> np.ndarray:
@@ -391,19 +414,22 @@ SOURCE_RECORDS: Dict[Source, str] = {"semantics": "annotations", "depth": "depth
 
 
 def _source_records(
-    config: LabelDatasetBase, inputs: LabelInputs, made: Dict[Source, Set[str]], written: Dict[str, str]
+    config: LabelDatasetBase, inputs: LabelInputs, made: Dict[Source, Set[str]], written: Dict[str, str],
+    earlier_imports: List[Dict],
 ) -> Dict[str, Any]:
-    """Where this run's annotations and rendered depth came from, per frame as the output names it (`written`)."""
+    """Where this run's annotations and rendered depth came from, per frame as the output names it (`written`): the
+    annotation imports as a list, this one after the `earlier_imports` (which --relabel drops)."""
     records: Dict[str, Any] = {}
     source = inputs.annotations.source if inputs.annotations is not None else inputs.masks
     if source is not None and made.get("semantics"):
-        records["annotations"] = {
+        record = {
             "source": str(source.resolve()), "format": inputs.source_format(),
             "frames": {written[path]: str(file.resolve()) for path, file in inputs.annotated.items()
                        if written[path] in made["semantics"]},
         }
         if inputs.annotations is not None and inputs.annotations.skipped:
-            records["annotations"]["skipped_shapes"] = dict(inputs.annotations.skipped)
+            record["skipped_shapes"] = dict(inputs.annotations.skipped)
+        records["annotations"] = [*([] if config.relabel else earlier_imports), record]
     rendered = [written[path] for path in inputs.depth_frames if written[path] in made.get("depth", set())]
     if inputs.depth_model is not None and rendered:
         records["depth_from"] = {**inputs.depth_model.describe(config.depth_from_scale),
@@ -424,5 +450,7 @@ def _provenance(
     remade = {SOURCE_RECORDS[source] for source in made_from if source in SOURCE_RECORDS}
     record = {key: value for key, value in earlier.items() if key not in remade}
     record.update({"tool": "ssnerf-label", **{spec.name: spec.label_maker.describe(options) for spec in made}})
-    record.update(_source_records(config, inputs, made_from, written))
+    imports = earlier.get("annotations", [])
+    imports = [imports] if isinstance(imports, dict) else list(imports)  # (one record, before imports were listed)
+    record.update(_source_records(config, inputs, made_from, written, imports))
     return record

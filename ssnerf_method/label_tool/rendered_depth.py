@@ -104,15 +104,22 @@ class DepthFromModel:
     def __post_init__(self) -> None:
         self._lock = threading.Lock()
 
-    def z_depth(self, transforms: Transforms, frame: Dict, resolution_scale: float) -> Float[np.ndarray, "h w"]:
-        """The frame's z-depth (file units) at `resolution_scale`; NaN where the render is nearly transparent."""
+    def render(self, transforms: Transforms, frame: Dict, resolution_scale: float) -> Dict[str, torch.Tensor]:
+        """The model's outputs at the frame's pose (moved into the model's frame), at `resolution_scale`."""
         camera = frame_camera(transforms, frame)
         pose = move_pose(np.vstack([frame["transform_matrix"][:3], [0.0, 0.0, 0.0, 1.0]]), self.transform, self.scale)
         camera.camera_to_worlds = torch.from_numpy(pose[None, :3]).float()
         if resolution_scale != 1.0:
             camera.rescale_output_resolution(resolution_scale)
         with self._lock:
-            outputs = self.model.render_camera(camera.to(self.model.device))
+            return self.model.render_camera(camera.to(self.model.device))
+
+    def z_depth(self, transforms: Transforms, frame: Dict, resolution_scale: float) -> Float[np.ndarray, "h w"]:
+        """The frame's z-depth (file units) at `resolution_scale`; NaN where the render is nearly transparent."""
+        return self.depth_of(self.render(transforms, frame, resolution_scale))
+
+    def depth_of(self, outputs: Dict[str, torch.Tensor]) -> Float[np.ndarray, "h w"]:
+        """z-depth (file units) of rendered `outputs`; NaN where the render is nearly transparent."""
         depth = (rendered_z_depth(outputs)[..., 0] / self.scale).double().cpu().numpy()
         opaque = outputs["accumulation"][..., 0].cpu().numpy() >= self.min_accumulation
         return np.where(opaque & np.isfinite(depth), depth, np.nan)
@@ -143,7 +150,7 @@ def _check_same_poses(
     cameras = outputs.cameras.camera_to_worlds.double().numpy()
     by_name: Dict[PurePosixPath, Optional[np.ndarray]] = {}
     for path, pose in zip(outputs.image_filenames, cameras):
-        relative = _relative(Path(path), trained_folder)
+        relative = relative_image_path(Path(path), trained_folder)
         by_name[relative] = None if relative in by_name else pose  # an image listed twice: not compared
     matched = 0
     for frame in transforms.frames:
@@ -165,7 +172,7 @@ def _check_same_poses(
         )
 
 
-def _relative(path: Path, folder: Path) -> PurePosixPath:
+def relative_image_path(path: Path, folder: Path) -> PurePosixPath:
     """An image path of the dataparser relative to its dataset folder (its downscaled `images_N` folder as `images`)."""
     try:
         parts = list(path.resolve().relative_to(folder.resolve()).parts)

@@ -10,7 +10,7 @@ import numpy as np
 
 from ssnerf_method.data.io import DatasetInputError, read_image
 from ssnerf_method.data.transforms import Transforms
-from ssnerf_method.importers import coco, labelme
+from ssnerf_method.importers import clicks, coco, labelme
 from ssnerf_method.importers.annotations import Annotations, FrameIndex, read_json
 from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
 from ssnerf_method.label_makers.makers import Skip
@@ -117,13 +117,16 @@ def load_annotations(path: Path, transforms: Transforms) -> Optional[Annotations
             "labelme .json or a folder of them, or a folder of class-id PNGs; convert other formats to COCO first."
         )
     content = read_json(path, "annotations")
+    if clicks.is_clicks_file(content):
+        return _with_shapes(clicks.read_clicks(path, content, index, transforms.meta.get("semantic_classes") or []))
     if isinstance(content, dict) and "images" in content and "annotations" in content:
         return _with_shapes(coco.read_coco(path, content, index))
     if isinstance(content, dict) and "shapes" in content:
         return _with_shapes(labelme.read_labelme_files(path.parent, [path], index, {path: content}, source=path))
     raise DatasetInputError(
         f"{path}: neither a COCO file (\"images\", \"annotations\", \"categories\") nor a labelme file (\"shapes\"). "
-        "Export the annotations as COCO instance segmentation or labelme JSON."
+        "Export the annotations as COCO instance segmentation or labelme JSON, or answer ssnerf-label's suggested "
+        "clicks."
     )
 
 

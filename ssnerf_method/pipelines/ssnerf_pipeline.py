@@ -28,6 +28,7 @@ from nerfstudio.pipelines.base_pipeline import VanillaPipeline, VanillaPipelineC
 
 from ssnerf_method.errors import UserError
 from ssnerf_method.metrics import METRICS, Statistics, add_statistics
+from ssnerf_method.viewer.host import serve_locally_by_default
 from ssnerf_method.viewer.label_panel import add_label_panel
 
 
@@ -71,6 +72,7 @@ class SSNeRFPipeline(VanillaPipeline):
 
     def __init__(self, config: SSNeRFPipelineConfig, device: str, test_mode: str = "val", *args, **kwargs) -> None:
         hand_patches_to_sampler(config)
+        serve_locally_by_default()  # (the viewer, made after the pipeline, may write into the dataset)
         super().__init__(config, device, test_mode, *args, **kwargs)
         strokes = getattr(self.datamanager, "strokes", None)
         if strokes is not None and getattr(self.model, "semantic_classes", None) is not None:

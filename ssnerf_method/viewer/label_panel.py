@@ -33,6 +33,23 @@ NO_CLASS = "(add a class first)"
 """The class picker's only entry while the dataset has no class."""
 MAX_RAYS_PER_STROKE = 4096
 """A larger box is painted on a regular subgrid of its pixels (neighbouring rays say the same thing)."""
+BRUSH_RADII = (1, 32)
+"""The brush slider's range (pixels); a client message outside it is refused."""
+MAX_CLASS_NAME = 64
+"""Longest class name the panel adds (characters)."""
+
+
+def outside_image(*positions: Sequence[float]) -> bool:
+    """Whether a screen position (fractions of the image's width and height) from a client is not a point of the
+    image: outside [0, 1] x [0, 1], not a pair, or not finite."""
+    for position in positions:
+        try:
+            x, y = (float(value) for value in position)
+        except (TypeError, ValueError):
+            return True
+        if not (0.0 <= x <= 1.0 and 0.0 <= y <= 1.0):  # (NaN fails both)
+            return True
+    return False
 
 
 def disc_pixels(centre: Sequence[float], radius: float, width: int, height: int) -> np.ndarray:
@@ -105,8 +122,9 @@ class LabelPanel(nn.Module):
         self.b_class = ViewerDropdown("Class", entries[0], entries, cb_hook=lambda element: self._show_colour(),
                                       hint="The class painted")
         self.c_colour = ViewerRGB("Class colour", self.colour(0), disabled=True, hint="Its colour in the semantics")
-        self.d_brush = ViewerSlider("Brush radius (px)", 3, 1, 32, 1, hint="Radius of a click's disc, in pixels of "
-                                                                           "an image as tall as the training images")
+        self.d_brush = ViewerSlider("Brush radius (px)", 3, *BRUSH_RADII, 1,
+                                    hint="Radius of a click's disc, in pixels of an image as tall as the training "
+                                         "images")
         self.e_new_class = ViewerText("New class", "", hint="Name of a class to add")
         self.f_add_class = ViewerButton("Add class", cb_hook=lambda _: self.add_class(self.e_new_class.value))
         self.g_undo = ViewerButton("Undo last stroke", cb_hook=lambda _: self.undo())
@@ -122,9 +140,22 @@ class LabelPanel(nn.Module):
 
     @property
     def class_id(self) -> Optional[int]:
-        """The class picked (None while there is none)."""
+        """The class picked (None while there is none, or when a client sent a value that is not in the list)."""
         entries = self.entries()
         return entries.index(self.b_class.value) if self.b_class.value in entries and self.class_names else None
+
+    def refusal(self, *positions: Sequence[float], radius: Optional[float] = None) -> Optional[str]:
+        """Why a client's stroke must not be written (checked before anything is): no class picked or one not in
+        the list, a position outside the image, a brush outside the slider's range; None when it may be."""
+        if not self.class_names:
+            return "Add a class first (New class, then Add class)."
+        if self.class_id is None:
+            return f"Not saved: class {str(self.b_class.value)[:MAX_CLASS_NAME]!r} is not in the list; pick one."
+        if outside_image(*positions):
+            return "Not saved: the stroke is outside the image."
+        if radius is not None and not BRUSH_RADII[0] <= radius <= BRUSH_RADII[1]:
+            return f"Not saved: brush radius {radius:g} is outside {BRUSH_RADII[0]}..{BRUSH_RADII[1]} px."
+        return None
 
     def summary(self) -> str:
         count, rays = len(self.store.strokes), self.store.num_rays()
@@ -168,12 +199,20 @@ class LabelPanel(nn.Module):
 
     def paint_disc(self, camera: Cameras, screen_position: Sequence[float], radius: float) -> Optional[Stroke]:
         """Paint the disc around a point of `camera`'s image (fractions of its width and height)."""
+        refused = self.refusal(screen_position, radius=float(radius))
+        if refused:
+            self._say(refused)
+            return None
         width, height = int(camera.width), int(camera.height)
         centre = (screen_position[0] * width, screen_position[1] * height)
         return self.paint(camera, disc_pixels(centre, radius, width, height))
 
     def paint_box(self, camera: Cameras, corner_min: Sequence[float], corner_max: Sequence[float]) -> Optional[Stroke]:
         """Paint a box of `camera`'s image (corners as fractions of its width and height)."""
+        refused = self.refusal(corner_min, corner_max)
+        if refused:
+            self._say(refused)
+            return None
         pixels = box_pixels(corner_min, corner_max, int(camera.width), int(camera.height))
         return self.paint(camera, pixels) if len(pixels) else None
 
@@ -181,7 +220,7 @@ class LabelPanel(nn.Module):
         """Store one stroke: `pixels` (column, row) of `camera`, in the class picked."""
         class_id = self.class_id
         if class_id is None:
-            self._say("Add a class first (New class, then Add class).")
+            self._say(self.refusal() or "Pick a class.")
             return None
         stroke = stroke_from_pixels(camera, pixels, self.class_names[class_id], self.frame)
         try:
@@ -199,9 +238,12 @@ class LabelPanel(nn.Module):
 
     def add_class(self, name: str) -> bool:
         """Add a class (recorded in the strokes file) and pick it; False, with the reason shown, when it cannot be."""
-        name = name.strip()
+        name = str(name).strip()
         if not name:
             self._say("Type the new class's name first.")
+            return False
+        if len(name) > MAX_CLASS_NAME or not name.isprintable():
+            self._say(f"Not added: a class name is at most {MAX_CLASS_NAME} printable characters.")
             return False
         if name not in self.class_names:
             if len(self.class_names) >= self.num_slots:
