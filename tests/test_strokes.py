@@ -317,3 +317,43 @@ def test_a_clients_stroke_is_checked_before_anything_is_written(tmp_path: Path, 
         assert not panel.add_class(message["new_class"])
     assert reason in panel.h_status.value
     assert store.path.read_bytes() == before and len(store.strokes) == 1 and panel.class_names == ["void", "wall"]
+
+
+def test_suggested_clicks_are_asked_answered_as_strokes_and_skipped(tiny_dataset: Path) -> None:
+    """The Label panel's questions without a browser: the guess is picked, an answer is a one-ray stroke through the
+    click's pixel from its frame's camera plus the class in the suggestion file, a skip is marked, a bad class from a
+    client writes nothing, and the end is said."""
+    store = StrokeStore.of_dataset(tiny_dataset)
+    panel = LabelPanel(store, FRAME, ["void", "wall", "floor", "table"], 4, torch.rand(4, 3), 12, False)
+    assert panel.ask() is None and "no suggested clicks yet" in panel.h_status.value
+    meta = json.loads((tiny_dataset / "transforms.json").read_text())
+    frames = [frame["file_path"] for frame in meta["frames"]]
+    path = tiny_dataset / "ssnerf_labels" / "suggested_clicks.json"
+    path.parent.mkdir(exist_ok=True)
+    path.write_text(json.dumps({"clicks": [
+        {"file_path": frames[1], "x": 3, "y": 4, "class": None, "guess": "table", "uncertainty": 0.9, "point": None},
+        {"file_path": frames[2], "x": 5, "y": 6, "class": None, "guess": "wall", "uncertainty": 0.8, "point": None},
+        {"file_path": frames[3], "x": 15, "y": 11, "class": None, "guess": "floor", "uncertainty": 0.7,
+         "point": [0.0, 0.0, 0.0]}]}))
+
+    question = panel.ask()
+    assert question is not None and question.index == 0 and panel.b_class.value == "3: table"
+    assert "Click 1 of 3" in panel.h_status.value and "guesses 'table'" in panel.h_status.value
+    panel.b_class.value = "7: dragon"  # a client's value that is not in the list
+    assert panel.answer() is None and "not in the list" in panel.h_status.value and not store.path.exists()
+    panel.b_class.value = "2: floor"
+    stroke = panel.answer()
+    assert stroke is not None and stroke.class_name == "floor" and len(stroke.origins) == 1
+    pose = np.asarray(meta["frames"][1]["transform_matrix"])[:3]
+    through = pose[:, :3] @ np.array([(3.5 - meta["cx"]) / meta["fl_x"], -(4.5 - meta["cy"]) / meta["fl_y"], -1.0])
+    assert stroke.origins[0] == pytest.approx(pose[:, 3]) and stroke.directions[0] == pytest.approx(
+        through / np.linalg.norm(through))
+    assert [s.class_name for s in StrokeStore.of_dataset(tiny_dataset).strokes] == ["floor"]  # saved at once
+    assert json.loads(path.read_text())["clicks"][0]["class"] == "floor"
+    assert panel.question is not None and panel.question.index == 1 and "Click 2 of 3" in panel.h_status.value
+
+    panel.skip()
+    assert json.loads(path.read_text())["clicks"][1]["skipped"] is True and panel.question.index == 2
+    assert panel.answer() is not None and panel.question is None
+    assert "No suggested click left (2 answered, 1 skipped)" in panel.h_status.value
+    assert [s.class_name for s in StrokeStore.of_dataset(tiny_dataset).strokes] == ["floor", "floor"]

@@ -453,3 +453,19 @@ def test_a_study_hands_its_launcher_flags_to_the_runs(study, tmp_path: Path) -> 
     assert (config.launcher, config.ray_address, config.cpus_per_run, config.gpus_per_run, config.retries) == (
         "ray", "ray://head:10001", 2.0, 1.0, 5)
     assert (config.output, config.steps) == (tmp_path, 7)
+
+
+def test_propagation_suggested_frames_are_a_row_of_their_own(trained_scene, tmp_path: Path) -> None:
+    """`--frame-choice even suggested`: a copy per choice; the suggested copy labels the frames `ssnerf-label
+    --suggest-frames` picks from the scene's depth, the even copy evenly spaced ones."""
+    from ssnerf_method.experiments.propagation import suggested_frames
+
+    scene, _ = trained_scene
+    study = PropagationStudy(quick=True, output=tmp_path, scenes=(scene,), frames=(2,), pixels=(), grow_scale=0,
+                             frame_choice=("even", "suggested"))
+    planned = {setting.name: bench for (_, setting, _), bench in study.benchmarks(study.benchmark_config()).items()}
+    assert set(planned) == {"2 frames", "2 suggested frames", "all frames"}
+    kept = {name: json.loads((planned[name].scene / "transforms.json").read_text())["ssnerf_propagation"][
+        "labelled_frames"] for name in ("2 frames", "2 suggested frames")}
+    assert kept["2 suggested frames"] == sorted(suggested_frames(scene, 2))
+    assert kept["2 suggested frames"] != kept["2 frames"] and len(kept["2 frames"]) == 2

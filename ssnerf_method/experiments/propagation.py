@@ -14,7 +14,7 @@ import json
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Literal, Optional, Tuple
 
 import numpy as np
 import torch
@@ -28,6 +28,7 @@ from ssnerf_method.atomic import write_text_atomic
 from ssnerf_method.data.dataparser import SSNeRFDataParserConfig
 from ssnerf_method.data.dataset import SSNeRFDataset
 from ssnerf_method.data.io import StagedOutputFolder
+from ssnerf_method.data.transforms import load_transforms
 from ssnerf_method.evaluation.heuristic import (
     HeuristicBaseline,
     NearestLabelledPoint,
@@ -49,10 +50,12 @@ from ssnerf_method.experiments.studies import Results, StudyConfig, single, writ
 from ssnerf_method.experiments.transfer import PATH_KEYS, evenly_spaced
 from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
 from ssnerf_method.label_makers.segments import SEGMENT_SCALE, grow_in_segments
+from ssnerf_method.label_tool.suggest import frame_views, suggest_frames, training_frames
 from ssnerf_method.metrics import class_iou
 from ssnerf_method.properties import REGISTRY, class_property
 from ssnerf_method.rendering.depth import rendered_z_depth
 
+FrameChoice = Literal["even", "suggested"]
 SSNERF, SSNERF_TRAIN = "SS-NeRF", "SS-NeRF, unlabelled training views"
 HEURISTIC, NEAREST = "Heuristic (labelled frames)", "Nearest labelled frame copied"
 NEAREST_POINT = "Nearest labelled point in 3D"
@@ -84,11 +87,13 @@ class Setting:
     frames: Optional[int] = None
     pixels: Optional[int] = None
     grow: Optional[float] = None
+    choice: FrameChoice = "even"
+    """How the k frames are chosen: evenly spaced, or as `ssnerf-label --suggest-frames k` suggests them."""
 
     @property
     def family(self) -> str:
         if self.frames is not None:
-            return "frames"
+            return "frames" if self.choice == "even" else "suggested frames"
         if self.pixels is not None:
             return "pixels" if self.grow is None else "grown"
         return "dense"
@@ -96,7 +101,8 @@ class Setting:
     @property
     def name(self) -> str:
         if self.frames is not None:
-            return f"{self.frames} frame{'s' if self.frames > 1 else ''}"
+            chosen = " suggested" if self.choice == "suggested" else ""
+            return f"{self.frames}{chosen} frame{'s' if self.frames > 1 else ''}"
         if self.pixels is not None:
             return f"{self.pixels} px/class/frame" + ("" if self.grow is None else ", grown")
         return ALL_FRAMES
@@ -104,6 +110,7 @@ class Setting:
     def folder(self, scene: Path, seed: int = 0) -> str:
         """The copy's folder and runs' name; a pixel setting's nonzero seed is in it, so draws never share them."""
         suffix = f"{self.frames}frames" if self.frames is not None else f"{self.pixels}pixels"
+        suffix += "-suggested" if self.frames is not None and self.choice == "suggested" else ""
         drawn = f"-draw{seed}" if self.pixels is not None and seed != 0 else ""
         return f"{scene.name}-{suffix}" + ("" if self.grow is None else f"-grown{self.grow:g}") + drawn
 
@@ -192,6 +199,13 @@ def seen_share(masks: Optional[Dict[int, Tuple[Tensor, Tensor]]]) -> Optional[fl
     return seen / total if total else None
 
 
+def suggested_frames(scene: Path, count: int) -> List[str]:
+    """The `count` training frames `ssnerf-label --suggest-frames` suggests for `scene` (from its depth), absolute."""
+    transforms = load_transforms(scene)
+    views = frame_views(transforms, training_frames(transforms), None)
+    return [str((transforms.folder / pick.file_path).resolve()) for pick in suggest_frames(views, count).picks]
+
+
 def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, seed: int = 0) -> Dict[str, Any]:
     """Write the scene with its training semantics cut down to `setting`; returns what was kept and labelled."""
     key = class_property().file_key
@@ -201,7 +215,8 @@ def make_propagation_dataset(scene: Path, destination: Path, setting: Setting, s
     keys = {*PATH_KEYS, *(spec.file_key for spec in REGISTRY.values() if spec.file_key is not None)}
     ordered = [image for image in (str((root / frame["file_path"]).resolve()) for frame in meta["frames"])
                if image in train]
-    chosen = set(train) if setting.frames is None else set(evenly_spaced(ordered, setting.frames))
+    chosen = set(train) if setting.frames is None else set(
+        evenly_spaced(ordered, setting.frames) if setting.choice == "even" else suggested_frames(scene, setting.frames))
     for split in ("train_filenames", "val_filenames", "test_filenames"):
         if split in meta:
             meta[split] = [str(root / name) for name in meta[split]]
@@ -242,7 +257,10 @@ class PropagationStudy(StudyConfig):
     """Semantics from k labelled frames or c pixels per class per frame, against every frame's labels."""
 
     frames: Tuple[int, ...] = (1, 2, 4, 8)
-    """Numbers k of densely labelled training frames (evenly spaced); the every-frame model is always added."""
+    """Numbers k of densely labelled training frames; the every-frame model is always added."""
+    frame_choice: Tuple[FrameChoice, ...] = ("even",)
+    """How the k frames are chosen, a row per choice: `even` (evenly spaced along the capture) and/or `suggested`
+    (as `ssnerf-label --suggest-frames k` suggests them: most of the scene seen, from the capture's depth)."""
     pixels: Tuple[int, ...] = (1, 5, 25)
     """Numbers c of labelled pixels per class per training frame."""
     grow_scale: float = SEGMENT_SCALE
@@ -261,7 +279,8 @@ class PropagationStudy(StudyConfig):
         frames, pixels = ((1, 2), (1,)) if self.quick and (self.frames, self.pixels) == (
             PropagationStudy.frames, PropagationStudy.pixels) else (self.frames, self.pixels)
         grown = [Setting(pixels=c, grow=self.grow_scale) for c in pixels] if self.grow_scale > 0 else []
-        return [*(Setting(frames=k) for k in frames), Setting(), *(Setting(pixels=c) for c in pixels), *grown]
+        chosen = [Setting(frames=k, choice=choice) for choice in self.frame_choice for k in frames]
+        return [*chosen, Setting(), *(Setting(pixels=c) for c in pixels), *grown]
 
     def draws(self, setting: Setting) -> Tuple[int, ...]:
         """The seeds `setting` is trained with: every seed for a pixel setting, the first for the rest."""
@@ -462,7 +481,8 @@ class PropagationStudy(StudyConfig):
         rows = {row["row"]: row for row in data["propagation"]}
         figure, axis = plt.subplots(figsize=(6.4, 5.0))
         styles = {SSNERF: "o-", SSNERF_TRAIN: "o:", HEURISTIC: "s--", NEAREST: "^-.", NEAREST_POINT: "d:"}
-        families = {"frames": ("full", "k labelled frames"), "pixels": ("none", "c pixels per class"),
+        families = {"frames": ("full", "k labelled frames"), "suggested frames": ("right", "k suggested frames"),
+                    "pixels": ("none", "c pixels per class"),
                     "grown": ("left", "c pixels per class, grown")}
         for family, (marker_fill, description) in families.items():
             chosen = [setting for setting in self.settings() if setting.family == family]

@@ -220,10 +220,12 @@ class Click:
     y: int
     guess: str
     uncertainty: float
+    point: Tuple[float, float, float]
+    """The surface point asked about (transforms file's frame), where the viewer marks the question."""
 
     def record(self) -> Dict:
         return {"file_path": self.file_path, "x": self.x, "y": self.y, "class": None, "guess": self.guess,
-                "uncertainty": round(self.uncertainty, 4)}
+                "uncertainty": round(self.uncertainty, 4), "point": [round(value, 6) for value in self.point]}
 
 
 @dataclass
@@ -286,7 +288,8 @@ def suggest_clicks(views: Sequence[FrameView], uncertainty: Sequence[np.ndarray]
     chosen = spread_picks(candidates.points, order, count, CLICK_SPACING * extent)
     return [Click(views[int(candidates.frame[i])].file_path, int(candidates.pixel[i, 0]), int(candidates.pixel[i, 1]),
                   class_names[int(candidates.guess[i])] if int(candidates.guess[i]) < len(class_names) else "?",
-                  float(candidates.uncertainty[i])) for i in chosen]
+                  float(candidates.uncertainty[i]), tuple(float(v) for v in candidates.points[i]))  # type: ignore
+            for i in chosen]
 
 
 def suggestion_path(folder: Path, name: str) -> Path:

@@ -2,6 +2,9 @@
 
 A click paints a brush disc, a drag a box, as rays of the viewer's camera at the training images' height; each stroke
 is saved at once (`data/strokes.py`). `ns-train` mixes them into every batch; `ns-viewer` keeps them for the next run.
+"Next suggested click" asks the questions `ssnerf-label --suggest-clicks` wrote (`questions.py`): a marker on the
+surface asked about, the model's guess picked; "Answer" saves the class picked as a one-ray stroke, "Skip" moves on.
+Everything a client sends is checked before anything is written (`refusal`).
 """
 
 from __future__ import annotations
@@ -25,7 +28,9 @@ from nerfstudio.viewer.viewer_elements import (
     ViewerText,
 )
 
+from ssnerf_method.data.io import DatasetInputError
 from ssnerf_method.data.strokes import Stroke, StrokeStore, WorldFrame
+from ssnerf_method.viewer.questions import Question, Questions
 
 OFF, BRUSH, BOX = "off", "brush: click", "box: drag"
 """The "Paint" choices: viewer navigation as usual, a disc per click, a box per drag."""
@@ -37,6 +42,10 @@ BRUSH_RADII = (1, 32)
 """The brush slider's range (pixels); a client message outside it is refused."""
 MAX_CLASS_NAME = 64
 """Longest class name the panel adds (characters)."""
+MARKER = "/ssnerf_question"
+"""Scene node of the marker on the surface a suggested click asks about."""
+VISER_SCALE = 10.0
+"""nerfstudio's viewer draws the scene at this scale (`VISER_NERFSTUDIO_SCALE_RATIO`)."""
 
 
 def outside_image(*positions: Sequence[float]) -> bool:
@@ -129,6 +138,13 @@ class LabelPanel(nn.Module):
         self.f_add_class = ViewerButton("Add class", cb_hook=lambda _: self.add_class(self.e_new_class.value))
         self.g_undo = ViewerButton("Undo last stroke", cb_hook=lambda _: self.undo())
         self.h_status = ViewerText("Strokes", self.summary(), disabled=True, hint="Saved in " + str(store.path))
+        self.questions = Questions(store.path.parent.parent)
+        self.question: Optional[Question] = None
+        self._marker = None
+        # (the next pixel `ssnerf-label --suggest-clicks` asks about, marked, with the model's guess picked in Class)
+        self.i_ask = ViewerButton("Next suggested click", cb_hook=lambda _: self.ask())
+        self.j_answer = ViewerButton("Answer with the class picked", cb_hook=lambda _: self.answer())
+        self.k_skip = ViewerButton("Skip this click", cb_hook=lambda _: self.skip())
 
     def entries(self) -> List[str]:
         return [f"{index}: {name}" for index, name in enumerate(self.class_names)] or [NO_CLASS]
@@ -230,6 +246,80 @@ class LabelPanel(nn.Module):
             return None
         self._say(self.summary())
         return stroke
+
+    def ask(self) -> Optional[Question]:
+        """Open the next unanswered suggested click: its marker, its guess picked, what it asks in the status."""
+        try:
+            self.question = self.questions.next()
+            counts = self.questions.counts()
+        except DatasetInputError as err:
+            self.question = None
+            self._say(str(err))
+            return None
+        question = self.question
+        if question is None:
+            self._say(f"No suggested click left ({counts['answered']} answered, {counts['skipped']} skipped).")
+            self._show_marker(None)
+            return None
+        if question.guess in self.class_names:
+            self.b_class.value = self.entries()[self.class_names.index(question.guess)]
+            self._show_colour()
+        self._show_marker(question.point)
+        certainty = "" if question.uncertainty is None else f", uncertainty {question.uncertainty:.2f}"
+        self._say(f"Click {counts['answered'] + counts['skipped'] + 1} of {counts['total']}: {question.file_path} at "
+                  f"({question.x}, {question.y}), marked; the model guesses {question.guess!r}{certainty}. Pick its "
+                  "class and Answer, or Skip.")
+        return question
+
+    def answer(self) -> Optional[Stroke]:
+        """Save the open question's answer (the class picked) as a stroke and in the suggestion file; ask the next."""
+        question = self.question
+        if question is None:
+            self._say("No open question: press Next suggested click.")
+            return None
+        refused = self.refusal()
+        if refused:
+            self._say(refused)
+            return None
+        class_name = self.class_names[self.class_id]  # type: ignore[index]
+        try:
+            stroke = self.questions.stroke(question, class_name)
+            self.store.add(stroke)
+            self.questions.mark(question, class_name)
+        except DatasetInputError as err:
+            self._say(str(err))
+            return None
+        except OSError as err:
+            self._say(f"Not saved: {err.filename or self.store.path} cannot be written ({err.strerror}).")
+            return None
+        self.question = None
+        self.ask()
+        return stroke
+
+    def skip(self) -> None:
+        """Mark the open question skipped and ask the next."""
+        if self.question is None:
+            self._say("No open question: press Next suggested click.")
+            return
+        try:
+            self.questions.mark(self.question, None)
+        except (DatasetInputError, OSError) as err:
+            self._say(str(err))
+            return
+        self.question = None
+        self.ask()
+
+    def _show_marker(self, point: Optional[np.ndarray]) -> None:
+        """Mark the surface point asked about (transforms file's frame) in the 3D view, or remove the marker."""
+        server = getattr(self.control, "viser_server", None)
+        if self._marker is not None:
+            self._marker.remove()
+            self._marker = None
+        if server is None or point is None:
+            return
+        position = self.frame.to_run(point[None])[0] * VISER_SCALE
+        self._marker = server.scene.add_icosphere(MARKER, radius=0.06, color=(255, 0, 255),
+                                                  position=tuple(float(v) for v in position))
 
     def undo(self) -> Optional[Stroke]:
         stroke = self.store.undo()
