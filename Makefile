@@ -4,6 +4,9 @@ PYTHON ?= python3
 VENV ?= .venv
 BIN := $(VENV)/bin
 APT_PACKAGES := chromium
+# The suite in two processes of one torch thread each (pytest-xdist; a file's tests stay in one process, so its
+# module fixtures are made once): nearly every test trains or renders on one thread, which left a core idle.
+PYTEST_WORKERS ?= -n 2 --dist loadfile
 DEMO_APT_PACKAGES := libusb-1.0-0 ffmpeg
 
 .PHONY: demo test docs env system demo-system
@@ -54,4 +57,4 @@ docs: $(VENV)/.docs-extras
 test: env demo-system system $(VENV)/.test-extras
 	$(BIN)/ruff check ssnerf_method tests scripts benchmarks conftest.py
 	$(MAKE) docs
-	$(BIN)/python -m pytest -q
+	OMP_NUM_THREADS=1 $(BIN)/python -m pytest -q $(PYTEST_WORKERS)

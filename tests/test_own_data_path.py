@@ -62,7 +62,8 @@ def test_the_readme_own_data_block_runs_on_photos_alone(photo_capture: Path, tmp
     commands = own_data_commands(ROOT / "README.md")
     programs = [shlex.split(command)[0] for command in commands]
     assert programs[:2] == ["ssnerf-process", "ssnerf-label"] and "ns-train" in programs, programs
-    env = {**os.environ, "OMP_NUM_THREADS": "2", "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
+    env = {**os.environ, "OMP_NUM_THREADS": os.environ.get("OMP_NUM_THREADS", "2"),
+           "PATH": f"{BIN}{os.pathsep}{os.environ.get('PATH', '')}"}
     for command in commands:
         words = shlex.split(command.replace("TIMESTAMP", "run"))
         if words[0] in SERVERS:
