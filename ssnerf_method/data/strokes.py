@@ -18,11 +18,15 @@ import torch
 from jaxtyping import Float
 from torch import Tensor
 
+from nerfstudio.cameras.cameras import Cameras
+
 from ssnerf_method.atomic import atomic_file
 from ssnerf_method.data.io import DatasetInputError
 
 STROKES_FILE = Path("ssnerf_labels") / "strokes.json"
 """Where a dataset keeps its strokes, relative to the dataset folder (beside `ssnerf-label`'s label folders)."""
+SUGGESTED_CLICKS_FILE = Path("ssnerf_labels") / "suggested_clicks.json"
+"""Where `ssnerf-label --suggest-clicks` writes its questions, which the viewer's Label panel asks too."""
 FORMAT = "ssnerf-strokes"
 """The file's `format` key (a JSON that lacks it is not a strokes file)."""
 
@@ -243,3 +247,19 @@ def merged_classes(declared: Sequence[str], store: StrokeStore) -> Tuple[List[st
     """The run's class names: the dataset's, then those added in the viewer that it lacks. Returns (all, added)."""
     added = [name for name in store.classes if name not in declared]
     return [*declared, *added], added
+
+
+def stroke_from_pixels(
+    camera: Cameras, pixels: np.ndarray, class_name: str, frame: WorldFrame
+) -> Stroke:
+    """The stroke of `pixels` (column, row) of `camera` (in the run's world frame), stored in the dataset's frame."""
+    coords = torch.from_numpy(pixels[:, ::-1].astype(np.float32) + 0.5)  # nerfstudio's (row, column), pixel centres
+    bundle = camera.generate_rays(camera_indices=0, coords=coords)
+    camera_to_world = camera.camera_to_worlds.reshape(3, 4).double().numpy()
+    return Stroke(
+        class_name=class_name,
+        origins=frame.from_run(bundle.origins.double().numpy()),
+        directions=frame.rotate_from_run(bundle.directions.double().numpy()),
+        camera_to_world=frame.camera_from_run(camera_to_world),
+        pixel_area=float(bundle.pixel_area.mean()),
+    )

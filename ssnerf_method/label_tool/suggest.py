@@ -24,8 +24,9 @@ import numpy as np
 from jaxtyping import Float
 
 from ssnerf_method.data.io import DatasetInputError, write_json_atomic
+from ssnerf_method.data.pinhole import PinholeView
+from ssnerf_method.data.strokes import SUGGESTED_CLICKS_FILE
 from ssnerf_method.data.transforms import Transforms, frame_camera, is_perspective
-from ssnerf_method.evaluation.heuristic import PinholeView
 from ssnerf_method.label_makers.encoding import SEMANTIC_IGNORE
 from ssnerf_method.label_tool.paths import LABEL_FOLDER
 
@@ -33,7 +34,7 @@ if TYPE_CHECKING:
     from ssnerf_method.label_tool.rendered_depth import DepthFromModel
 
 SUGGESTED_FRAMES = "suggested_frames.json"
-SUGGESTED_CLICKS = "suggested_clicks.json"
+SUGGESTED_CLICKS = SUGGESTED_CLICKS_FILE.name
 """The files the suggestions go to, in the dataset's `ssnerf_labels/`."""
 DEPTH_WIDTH = 96
 """Width (pixels) the depth and uncertainty are looked at: the scene's layout, not its detail, decides the picks."""

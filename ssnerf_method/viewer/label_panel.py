@@ -12,11 +12,11 @@ from __future__ import annotations
 from typing import Callable, List, Optional, Sequence
 
 import numpy as np
-import torch
 from jaxtyping import Float
 from torch import Tensor, nn
 
 from nerfstudio.cameras.cameras import Cameras
+from nerfstudio.utils.rich_utils import CONSOLE
 from nerfstudio.viewer.viewer_elements import (
     ViewerButton,
     ViewerClick,
@@ -29,7 +29,7 @@ from nerfstudio.viewer.viewer_elements import (
 )
 
 from ssnerf_method.data.io import DatasetInputError
-from ssnerf_method.data.strokes import Stroke, StrokeStore, WorldFrame
+from ssnerf_method.data.strokes import Stroke, StrokeStore, WorldFrame, stroke_from_pixels
 from ssnerf_method.viewer.questions import Question, Questions
 
 OFF, BRUSH, BOX = "off", "brush: click", "box: drag"
@@ -84,22 +84,6 @@ def box_pixels(corner_min: Sequence[float], corner_max: Sequence[float], width: 
     return np.stack([grid[0].ravel(), grid[1].ravel()], axis=-1)
 
 
-def stroke_from_pixels(
-    camera: Cameras, pixels: np.ndarray, class_name: str, frame: WorldFrame
-) -> Stroke:
-    """The stroke of `pixels` (column, row) of `camera` (in the run's world frame), stored in the dataset's frame."""
-    coords = torch.from_numpy(pixels[:, ::-1].astype(np.float32) + 0.5)  # nerfstudio's (row, column), pixel centres
-    bundle = camera.generate_rays(camera_indices=0, coords=coords)
-    camera_to_world = camera.camera_to_worlds.reshape(3, 4).double().numpy()
-    return Stroke(
-        class_name=class_name,
-        origins=frame.from_run(bundle.origins.double().numpy()),
-        directions=frame.rotate_from_run(bundle.directions.double().numpy()),
-        camera_to_world=frame.camera_from_run(camera_to_world),
-        pixel_area=float(bundle.pixel_area.mean()),
-    )
-
-
 class LabelPanel(nn.Module):
     """Class picker, brush size, "Add class", "Undo last stroke" and a paint switch (no parameters: nothing enters
     the checkpoint). `on_new_class` is told the class list after a class is added."""
@@ -142,9 +126,9 @@ class LabelPanel(nn.Module):
         self.question: Optional[Question] = None
         self._marker = None
         # (the next pixel `ssnerf-label --suggest-clicks` asks about, marked, with the model's guess picked in Class)
-        self.i_ask = ViewerButton("Next suggested click", cb_hook=lambda _: self.ask())
-        self.j_answer = ViewerButton("Answer with the class picked", cb_hook=lambda _: self.answer())
-        self.k_skip = ViewerButton("Skip this click", cb_hook=lambda _: self.skip())
+        self.i_ask = ViewerButton("Next suggested click", cb_hook=lambda _: self._reported(self.ask))
+        self.j_answer = ViewerButton("Answer with the class picked", cb_hook=lambda _: self._reported(self.answer))
+        self.k_skip = ViewerButton("Skip this click", cb_hook=lambda _: self._reported(self.skip))
 
     def entries(self) -> List[str]:
         return [f"{index}: {name}" for index, name in enumerate(self.class_names)] or [NO_CLASS]
@@ -246,6 +230,14 @@ class LabelPanel(nn.Module):
             return None
         self._say(self.summary())
         return stroke
+
+    def _reported(self, action: Callable[[], object]) -> None:
+        """Run a button's action; an error is said in the panel and logged (viser drops a callback's exception)."""
+        try:
+            action()
+        except Exception as err:  # noqa: BLE001 (the panel must say what went wrong, whatever it was)
+            CONSOLE.print_exception()
+            self._say(f"Failed: {type(err).__name__}: {err}")
 
     def ask(self) -> Optional[Question]:
         """Open the next unanswered suggested click: its marker, its guess picked, what it asks in the status."""

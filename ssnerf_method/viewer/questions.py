@@ -18,9 +18,8 @@ import numpy as np
 import torch
 
 from ssnerf_method.data.io import DatasetInputError, write_json_atomic
-from ssnerf_method.data.strokes import Stroke, WorldFrame
+from ssnerf_method.data.strokes import SUGGESTED_CLICKS_FILE, Stroke, WorldFrame, stroke_from_pixels
 from ssnerf_method.data.transforms import frame_camera, load_transforms
-from ssnerf_method.label_tool.suggest import SUGGESTED_CLICKS
 
 
 @dataclass
@@ -41,7 +40,7 @@ class Questions:
 
     def __init__(self, data: Path) -> None:
         self.data = data
-        self.path = data / "ssnerf_labels" / SUGGESTED_CLICKS
+        self.path = data / SUGGESTED_CLICKS_FILE
 
     def _read(self) -> Dict[str, Any]:
         try:
@@ -75,8 +74,6 @@ class Questions:
 
     def stroke(self, question: Question, class_name: str) -> Stroke:
         """The answer as a stroke: the ray through the click's pixel centre from its frame's camera (file frame)."""
-        from ssnerf_method.viewer.label_panel import stroke_from_pixels
-
         transforms = load_transforms(self.data)
         frame = next((frame for frame in transforms.frames if frame["file_path"] == question.file_path), None)
         if frame is None:
