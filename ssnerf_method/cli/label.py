@@ -79,10 +79,9 @@ def train_depth_model(config: LabelDatasetConfig, transforms: Transforms) -> Non
 
 def suggest(config: LabelDatasetConfig, transforms: Transforms) -> List[Path]:
     """--suggest-frames / --suggest-clicks: write the suggestion files (labelling nothing) and print them."""
-    import numpy as np
-    from PIL import Image
-
+    from ssnerf_method.data.io import image_size
     from ssnerf_method.label_tool import suggest as suggestions
+    from ssnerf_method.label_tool.sources import read_class_ids
     from ssnerf_method.properties import class_property, class_uncertainty
 
     if config.suggest_frames < 0 or config.suggest_clicks < 0:
@@ -130,9 +129,9 @@ def suggest(config: LabelDatasetConfig, transforms: Transforms) -> List[Path]:
             logits = renders[frame["file_path"]][spec.prediction_key]
             uncertainty.append(class_uncertainty(logits)[..., 0].cpu().numpy())
             guesses.append(logits.argmax(dim=-1).cpu().numpy())
-            width, height = Image.open(transforms.file(frame["file_path"])).size
+            width, height = image_size(transforms.file(frame["file_path"]))
             sizes.append((width, height))
-            labelled.append(np.asarray(Image.open(transforms.file(frame[spec.file_key])))
+            labelled.append(read_class_ids(transforms.file(frame[spec.file_key]), width, height, None)
                             if spec.file_key in frame else None)
         clicks = suggestions.suggest_clicks(views, uncertainty, guesses, labelled,
                                             model.model.class_names, config.suggest_clicks,  # type: ignore[union-attr]
